@@ -1,0 +1,54 @@
+"""The ``varskin`` command: one subcommand group per module in this package.
+
+Each module exposes ``register(subparsers)``, which adds its subcommands and sets
+``func`` on them. A ``VarskinError`` (a user's mistake or a device fault) becomes one line
+on stderr and exit status 2; anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from varskin.errors import VarskinError
+
+COMMAND_MODULES = ("simulate", "localize", "evaluate", "bench", "board", "robot")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="varskin",
+        description="Calibrate capacitive tactile skins: simulate, record, localize, evaluate.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"varskin.cli.{name}")
+        except ModuleNotFoundError as e:
+            # While a command group is being built its module may not exist yet.
+            if e.name != f"varskin.cli.{name}":
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except VarskinError as e:
+        print(f"varskin: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("varskin: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+"""Point logs in memory: every sensor's response to every touch at a known point.
+
+A *point log* is one touch: where the probe was (patch mm) and what each sensor read,
+averaged over the touch's samples. ``PointLogs`` holds a session's worth in arrays so
+localizers can work column by column (one column = one sensor's *point log map*). The
+CSV interchange format lives in ``varskin.pointlog_csv``; this module is format-free.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PointLog:
+    """One touch, as it arrives from a live session or a file."""
+
+    touch: int
+    x_mm: float
+    y_mm: float
+    values: np.ndarray  # (N,) mean response, relative to rest where a baseline was known
+    n_samples: int = 1
+    sample_sd: np.ndarray | None = None  # (N,) std of the samples within the touch
+    t_s: float | None = None
+    force_n: float | None = None
+
+
+@dataclass
+class PointLogs:
+    """All touches of a session, sensor-major arrays for the localizers."""
+
+    sensors: tuple[str, ...]
+    touch: np.ndarray  # (K,) int touch ids
+    xy_mm: np.ndarray  # (K, 2) probe locations
+    values: np.ndarray  # (K, N) float64, relative to rest if ``rest`` is given
+    n_samples: np.ndarray  # (K,) samples averaged into each row
+    sample_sd: np.ndarray | None = None  # (K, N)
+    rest: np.ndarray | None = None  # (N,) S0, mean of baseline samples (raw counts)
+    rest_sd: np.ndarray | None = None  # (N,) sigma0, std of baseline samples
+    t_s: np.ndarray | None = None  # (K,)
+    force_n: np.ndarray | None = None  # (K,)
+    source: str = "<memory>"
+    warnings: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.touch)
+
+    @property
+    def n_sensors(self) -> int:
+        return len(self.sensors)
+
+    def logs(self):
+        """Iterate the touches as ``PointLog`` records (the live-stream view)."""
+        for k in range(len(self)):
+            yield PointLog(
+                touch=int(self.touch[k]),
+                x_mm=float(self.xy_mm[k, 0]),
+                y_mm=float(self.xy_mm[k, 1]),
+                values=self.values[k],
+                n_samples=int(self.n_samples[k]),
+                sample_sd=None if self.sample_sd is None else self.sample_sd[k],
+                t_s=None if self.t_s is None else float(self.t_s[k]),
+                force_n=None if self.force_n is None else float(self.force_n[k]),
+            )
+
+    def subset(self, rows) -> PointLogs:
+        """The same session restricted to some touches (index array or boolean mask)."""
+        rows = np.asarray(rows)
+
+        def pick(a):
+            return None if a is None else a[rows]
+
+        return PointLogs(
+            sensors=self.sensors,
+            touch=self.touch[rows],
+            xy_mm=self.xy_mm[rows],
+            values=self.values[rows],
+            n_samples=self.n_samples[rows],
+            sample_sd=pick(self.sample_sd),
+            rest=self.rest,
+            rest_sd=self.rest_sd,
+            t_s=pick(self.t_s),
+            force_n=pick(self.force_n),
+            source=self.source,
+            warnings=list(self.warnings),
+        )
+
+    @classmethod
+    def from_logs(
+        cls,
+        sensors: tuple[str, ...] | list[str],
+        logs: list[PointLog],
+        rest: np.ndarray | None = None,
+        rest_sd: np.ndarray | None = None,
+        source: str = "<memory>",
+    ) -> PointLogs:
+        n = len(sensors)
+        k = len(logs)
+        has_sd = k > 0 and all(g.sample_sd is not None for g in logs)
+        has_t = k > 0 and all(g.t_s is not None for g in logs)
+        has_f = k > 0 and all(g.force_n is not None for g in logs)
+        return cls(
+            sensors=tuple(sensors),
+            touch=np.array([g.touch for g in logs], dtype=np.int64),
+            xy_mm=np.array([[g.x_mm, g.y_mm] for g in logs], float).reshape(k, 2),
+            values=np.array([g.values for g in logs], float).reshape(k, n),
+            n_samples=np.array([g.n_samples for g in logs], dtype=np.int64),
+            sample_sd=np.array([g.sample_sd for g in logs], float).reshape(k, n) if has_sd else None,
+            rest=rest,
+            rest_sd=rest_sd,
+            t_s=np.array([g.t_s for g in logs], float) if has_t else None,
+            force_n=np.array([g.force_n for g in logs], float) if has_f else None,
+            source=source,
+        )
