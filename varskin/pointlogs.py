@@ -114,3 +114,79 @@ class PointLogs:
             force_n=np.array([g.force_n for g in logs], float) if has_f else None,
             source=source,
         )
+
+
+def average_samples(
+    sensors: tuple[str, ...] | list[str],
+    touch: np.ndarray,
+    xy_mm: np.ndarray,
+    samples: np.ndarray,
+    baseline: np.ndarray | None = None,
+    t_s: np.ndarray | None = None,
+    force_n: np.ndarray | None = None,
+    source: str = "<memory>",
+) -> PointLogs:
+    """Average per-frame samples into one point log per touch id.
+
+    ``touch`` (M,), ``xy_mm`` (M, 2), ``samples`` (M, N) are frame rows; rows sharing a touch
+    id are one touch. Non-finite samples are skipped per cell and counted in ``warnings``; a
+    touch with no finite sample for some sensor is dropped with a warning. ``baseline``
+    (B, N) no-contact frames give S0 and sigma0 and are subtracted from the values.
+    """
+    sensors = tuple(sensors)
+    warnings: list[str] = []
+    samples = np.asarray(samples, float)
+    finite = np.isfinite(samples)
+    n_bad = int((~finite).sum())
+    if n_bad:
+        warnings.append(f"{source}: skipped {n_bad} non-finite sample(s)")
+    ids, inverse = np.unique(np.asarray(touch), return_inverse=True)
+    k, n = len(ids), samples.shape[1] if samples.ndim == 2 else len(sensors)
+    counts = np.zeros((k, n))
+    sums = np.zeros((k, n))
+    sq = np.zeros((k, n))
+    clean = np.where(finite, samples, 0.0)
+    np.add.at(counts, inverse, finite)
+    np.add.at(sums, inverse, clean)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = sums / counts
+        # Two-pass variance keeps precision with raw counts around 10,000.
+        dev = np.where(finite, samples - mean[inverse], 0.0)
+        np.add.at(sq, inverse, dev**2)
+        sd = np.sqrt(sq / np.maximum(counts - 1, 1))
+    rows = np.bincount(inverse, minlength=k)
+    first = np.zeros(k, dtype=np.int64)
+    first[inverse[::-1]] = np.arange(len(inverse))[::-1]
+    keep = (counts > 0).all(axis=1)
+    if not keep.all():
+        dropped = ", ".join(str(i) for i in ids[~keep][:10])
+        warnings.append(f"{source}: dropped touch(es) {dropped} with no valid sample")
+    rest = rest_sd = None
+    if baseline is not None and len(baseline):
+        baseline = np.asarray(baseline, float)
+        with np.errstate(invalid="ignore"):
+            rest = np.nanmean(np.where(np.isfinite(baseline), baseline, np.nan), axis=0)
+            rest_sd = np.nanstd(np.where(np.isfinite(baseline), baseline, np.nan), axis=0, ddof=1)
+        mean = mean - rest
+    xy = np.asarray(xy_mm, float)[first]
+
+    def per_touch(a):
+        if a is None:
+            return None
+        a = np.asarray(a, float)
+        return (np.bincount(inverse, weights=a, minlength=k) / np.maximum(rows, 1))[keep]
+
+    return PointLogs(
+        sensors=sensors,
+        touch=ids[keep].astype(np.int64),
+        xy_mm=xy[keep],
+        values=mean[keep],
+        n_samples=counts[keep].min(axis=1).astype(np.int64),
+        sample_sd=sd[keep],
+        rest=rest,
+        rest_sd=rest_sd,
+        t_s=per_touch(t_s),
+        force_n=per_touch(force_n),
+        source=source,
+        warnings=warnings,
+    )

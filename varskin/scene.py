@@ -44,7 +44,7 @@ class ProbeModel:
             # A human places the finger to about +-2 mm (taken as ~2 sigma) and presses unevenly.
             return ProbeModel("finger", 9.0, 1.0, 0.15, 2.0)
         if kind == "robot":
-            return ProbeModel("robot", 5.0, 0.05, 0.03, 2.0)
+            return ProbeModel("robot", 6.5, 0.05, 0.03, 2.0)
         raise ValueError(f"unknown probe {kind!r}: use 'finger' or 'robot'")
 
 
@@ -57,7 +57,8 @@ class SceneParams:
     noise_range: tuple[float, float] = (3.6, 6.9)
     peak_median: float = 170.0
     peak_range: tuple[float, float] = (86.0, 587.0)
-    drift_max: float = 120.0  # offset change from baseline to the touches, counts
+    drift_max: float = 120.0  # largest offset change from baseline to the touches, counts
+    drift_sd: float = 45.0  # typical offset change (normal, clipped at drift_max)
     drift_tau_s: float = 60.0  # how fast that change builds up
     samples_per_touch: tuple[int, int] = (40, 50)
     # Hidden layout: each wire is displaced and slightly bent, each crossing jitters a little.
@@ -119,7 +120,7 @@ class Scene:
         peak = np.clip(params.peak_median * np.exp(rng.normal(0, 0.45, n)), *params.peak_range)
         width = np.exp(rng.normal(0, params.width_spread, (n, 1)))
         aniso = np.exp(rng.normal(0, params.anisotropy_spread, (n, 1)) * np.array([[1, -1]]))
-        drift = rng.uniform(-params.drift_max, params.drift_max, n)
+        drift = np.clip(rng.normal(0, params.drift_sd, n), -params.drift_max, params.drift_max)
         return cls(patch, params, true_xy, rest, noise, peak, width * aniso, drift, np.zeros(n, bool))
 
     def with_params(self, **changes) -> Scene:
@@ -150,7 +151,7 @@ class Scene:
             -0.5 * ((y_mm - self.true_xy[:, 1]) / cw) ** 2
         )
         # A narrower probe couples less charge than a fingertip.
-        area = (probe.width_mm / 9.0) ** 1.0
+        area = (probe.width_mm / 9.0) ** 0.5
         out = self.peak * area * gain * (core + self.params.wire_coupling * along)
         out[self.dead] = 0.0
         return out
