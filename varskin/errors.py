@@ -86,3 +86,10 @@ class SafetyViolation(ValueError, RobotError):
 
 class StoreError(OSError, VarskinError):
     """A session store is unreadable, corrupt or from an incompatible version."""
+
+
+# --- registration -----------------------------------------------------------------------
+
+
+class RegistrationError(ValueError, VarskinError):
+    """The patch frame cannot be registered: degenerate touch-off points, too few markers."""

@@ -14,9 +14,10 @@ from varskin.predictions import Predictions
 
 # name -> module path; the first entry of DEFAULT_METHOD is what users get without --method.
 METHODS: dict[str, str] = {
+    "peakfit": "varskin.localize.peakfit",
     "paper": "varskin.localize.paper",
 }
-DEFAULT_METHOD = "paper"
+DEFAULT_METHOD = "peakfit"
 
 
 def localize(logs: PointLogs, method: str | None = None, **params) -> Predictions:

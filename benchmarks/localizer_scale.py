@@ -1,0 +1,113 @@
+"""Scale of the default localizer: a full Muca board and a live session.
+
+Run as ``python benchmarks/localizer_scale.py [--repeats N]``. One core: BLAS threads are
+pinned to 1 before numpy loads. Reports medians of repeated runs:
+
+* full board (21 TX x 12 RX = 252 sensors) with 1,000 point logs (a 50 x 20 robot grid on
+  a 300 x 200 mm patch): batch solve time (target <= 2 s), peak Python heap during the
+  solve (tracemalloc; target <= 500 MB) and max RSS of the process, and the time of one
+  live ``Localizer.update`` after 1,000 logs (target <= 20 ms);
+* Patch B (30 sensors) with 100 point logs: one ``update`` (target <= 5 ms).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import resource  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+import tracemalloc  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from varskin.localize import peakfit  # noqa: E402
+from varskin.patch import builtin_patch, patch_from_dict  # noqa: E402
+from varskin.predictions import OK  # noqa: E402
+from varskin.simulate import simulate_session, uniform_grid  # noqa: E402
+
+
+def full_board():
+    tx = [7.0 + 13.6 * i for i in range(21)]
+    rx = [8.0 + 16.7 * j for j in range(12)]
+    return patch_from_dict(
+        {"name": "muca_full", "size_mm": [300.0, 200.0], "tx_x_mm": tx, "rx_y_mm": rx},
+        "<full board>",
+    )
+
+
+def live_update_ms(logs, n_warm: int, n_timed: int) -> list[float]:
+    """Feed the first logs, then time each of the following updates."""
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    all_logs = list(logs.logs())
+    for log in all_logs[:n_warm]:
+        loc.update(log)
+    # Bring the live state to the doubling checkpoint first, as a session would have.
+    loc.result()
+    loc._next_full = 10 * len(all_logs)
+    times = []
+    for log in all_logs[n_warm : n_warm + n_timed]:
+        t0 = time.perf_counter()
+        loc.update(log)
+        times.append((time.perf_counter() - t0) * 1000.0)
+    return times
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3, help="batch repeats; default 3")
+    args = ap.parse_args()
+
+    board = full_board()
+    s = simulate_session(board, uniform_grid(board, 50, 20), probe="robot", seed=0)
+    logs = s.point_logs()
+    print(f"full board: {logs.n_sensors} sensors x {len(logs)} point logs")
+    times = []
+    pred = None
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        pred = peakfit.localize(logs)
+        times.append(time.perf_counter() - t0)
+    e = np.hypot(*(pred.xy() - s.truth).T)
+    n_ok = sum(p.status == OK for p in pred)
+    print(f"  batch solve: median {statistics.median(times):.2f} s over {args.repeats} (target <= 2 s)")
+    print(f"  accuracy: {n_ok}/{logs.n_sensors} ok, median error {np.nanmedian(e):.2f} mm, "
+          f"max {np.nanmax(e):.2f} mm")
+    tracemalloc.start()
+    peakfit.localize(logs)
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"  peak heap during a solve: {peak / 1e6:.0f} MB (target <= 500 MB); "
+          f"process max RSS {rss_mb:.0f} MB")
+    upd = live_update_ms(logs, 990, 10)
+    print(f"  live update after 990 logs: median {statistics.median(upd):.1f} ms, "
+          f"max {max(upd):.1f} ms over {len(upd)} (target <= 20 ms)")
+
+    patch = builtin_patch("patch_b")
+    s = simulate_session(patch, uniform_grid(patch, 20, 5), probe="robot", seed=0)
+    logs = s.point_logs()
+    upd = []
+    for _ in range(args.repeats):
+        upd += live_update_ms(logs, 80, 20)
+    print(f"Patch B: 30 sensors x 100 point logs: live update median {statistics.median(upd):.1f} ms, "
+          f"max {max(upd):.1f} ms over {len(upd)} (target <= 5 ms)")
+    t = []
+    for _ in range(args.repeats):
+        t0 = time.perf_counter()
+        peakfit.localize(logs)
+        t.append((time.perf_counter() - t0) * 1000.0)
+    print(f"Patch B batch solve: median {statistics.median(t):.0f} ms")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,161 @@
+"""``varskin board record`` and ``varskin board sim`` end to end on a real pty."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+
+import numpy as np
+
+from varskin.board.simboard import SimBoard
+from varskin.cli import main
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    return rows[0], np.array(rows[1:], dtype=float)
+
+
+def test_record_writes_patch_sensors_to_csv(tmp_path, patch_b, capsys):
+    out = tmp_path / "frames.csv"
+    with SimBoard(patch_b, rate_hz=100, baud=None, seed=2) as board:
+        rc = main(
+            [
+                "board",
+                "record",
+                "--port",
+                board.path,
+                "--patch",
+                "patch_b",
+                "--seconds",
+                "1",
+                "-o",
+                str(out),
+            ]
+        )
+        rest = board.scene.rest
+    assert rc == 0
+    header, data = read_csv(out)
+    assert header == ["t_s", "seq"] + [f"S{i}" for i in range(1, 31)]
+    assert len(data) >= 50
+    assert np.all(np.diff(data[:, 0]) >= 0) and data[0, 0] >= 0
+    assert data[:, 1].tolist() == list(range(len(data)))
+    # Idle board: every sensor sits near its simulated rest value.
+    assert np.all(np.abs(np.median(data[:, 2:], axis=0) - rest) < 40)
+    printed = capsys.readouterr().out
+    assert f"{len(data)} frames" in printed and "gaps: 0" in printed
+
+
+def test_record_all_cells_without_a_patch(tmp_path, patch_b, capsys):
+    out = tmp_path / "cells.csv"
+    with SimBoard(patch_b, rate_hz=50, baud=None, stamp_seq=True) as board:
+        assert (
+            main(["board", "record", "--port", board.path, "--seconds", "0.5", "-o", str(out)]) == 0
+        )
+    header, data = read_csv(out)
+    assert len(header) == 2 + 252 and header[-1] == "c20_11"
+    assert np.all(np.diff(data[:, -1]) == 1)  # the stamp cell counts up: nothing lost
+
+
+def test_bad_port_exits_2_with_one_line(tmp_path, capsys):
+    out = tmp_path / "x.csv"
+    rc = main(
+        ["board", "record", "--port", str(tmp_path / "ttyACM7"), "--seconds", "1", "-o", str(out)]
+    )
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and "ttyACM7" in err and err.startswith("varskin: error:")
+    assert not out.exists()
+
+
+def test_no_frames_exits_2_naming_the_port(tmp_path, capsys):
+    rc = main(
+        [
+            "board",
+            "record",
+            "--port",
+            "loop://",
+            "--seconds",
+            "1",
+            "--frame-timeout",
+            "0.2",
+            "-o",
+            str(tmp_path / "x.csv"),
+        ]
+    )
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "loop://" in err and len(err.splitlines()) == 1
+
+
+def test_unknown_patch_exits_2(tmp_path, capsys):
+    rc = main(
+        [
+            "board",
+            "record",
+            "--port",
+            "loop://",
+            "--patch",
+            "patch_z",
+            "--seconds",
+            "1",
+            "-o",
+            str(tmp_path / "x.csv"),
+        ]
+    )
+    assert rc == 2 and "patch_z" in capsys.readouterr().err
+
+
+def test_board_sim_command_prints_a_device_path_that_records(tmp_path):
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "varskin",
+            "board",
+            "sim",
+            "--rate",
+            "50",
+            "--baud",
+            "0",
+            "--touch-demo",
+            "--seconds",
+            "8",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.endswith("ttyMUCA0")
+        out = tmp_path / "demo.csv"
+        assert (
+            main(
+                [
+                    "board",
+                    "record",
+                    "--port",
+                    path,
+                    "--patch",
+                    "patch_b",
+                    "--seconds",
+                    "3",
+                    "-o",
+                    str(out),
+                ]
+            )
+            == 0
+        )
+        _, data = read_csv(out)
+        # The touch demo presses S1, S2, ... in turn (1.5 s on, 1 s off): some sensor rises
+        # far above its own quiet level (noise is ~5 counts).
+        sensors = data[:, 2:]
+        rise = sensors.max(axis=0) - np.percentile(sensors, 5, axis=0)
+        assert rise.max() > 80
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
+        proc.stderr.close()

@@ -1,0 +1,217 @@
+"""The core commands end to end through ``varskin.cli.main``: simulate, localize, evaluate, demo."""
+
+from __future__ import annotations
+
+import json
+import sys
+import types
+
+import pytest
+
+from varskin.cli import main
+from varskin.predictions import Predictions, SensorEstimate
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sim")
+    logs, truth = d / "logs.csv", d / "truth.csv"
+    code = main(
+        [
+            "simulate",
+            "--patch",
+            "configs/patch_b.yaml",
+            "--grid",
+            "20x5",
+            "--probe",
+            "finger",
+            "--seed",
+            "1",
+            "-o",
+            str(logs),
+            "--truth",
+            str(truth),
+        ]
+    )
+    assert code == 0
+    return logs, truth
+
+
+def test_simulate_writes_frames_and_truth_with_the_same_names(simulated):
+    logs, truth = simulated
+    header = logs.read_text().splitlines()[0].split(",")
+    truth_rows = truth.read_text().splitlines()
+    assert header[:5] == ["touch", "x_mm", "y_mm", "t_s", "force_n"]
+    assert [r.split(",")[0] for r in truth_rows[1:]] == header[5:]
+    assert len(header) == 35
+
+
+def test_simulate_accepts_a_builtin_name_and_rejects_unknown(tmp_path, capsys):
+    out = tmp_path / "a.csv"
+    assert main(["simulate", "--patch", "patch_a", "--grid", "4x3", "-o", str(out)]) == 0
+    assert (tmp_path / "a_truth.csv").read_text().count("\n") == 23
+    assert main(["simulate", "--patch", "patch_z", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "patch_z" in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_simulate_localize_evaluate(simulated, tmp_path, capsys):
+    logs, truth = simulated
+    pred, pred_json, plots = tmp_path / "pred.csv", tmp_path / "pred.json", tmp_path / "plots"
+    code = main(
+        [
+            "localize",
+            str(logs),
+            "--method",
+            "paper",
+            "--ppcm",
+            "16",
+            "-o",
+            str(pred),
+            "--json",
+            str(pred_json),
+            "--plots",
+            str(plots),
+            "--plot-sensors",
+            "S14",
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "S30" in out and "30/30 sensors localized" in out
+    assert pred.read_text().splitlines()[0] == "sensor,x_mm,y_mm,sigma_mm,snr_db,status"
+    data = json.loads(pred_json.read_text())
+    assert data["method"] == "paper" and data["params"]["ppcm"] == 16 and len(data["sensors"]) == 30
+    for name in ("predictions.png", "map_S14.png"):
+        assert (plots / name).stat().st_size > 5000
+    assert sorted(p.name for p in plots.iterdir()) == ["map_S14.png", "predictions.png"]
+
+    ev_json = tmp_path / "eval.json"
+    assert main(["evaluate", str(pred), "--truth", str(truth), "--json", str(ev_json)]) == 0
+    out = capsys.readouterr().out
+    assert "RMS (N-1)" in out and "S14" in out
+    ev = json.loads(ev_json.read_text())
+    assert ev["n_ok"] == 30 and 1.0 <= ev["rms_mm"] <= 2.5
+
+
+def test_quiet_prints_nothing(simulated, tmp_path, capsys):
+    logs, _ = simulated
+    assert (
+        main(
+            [
+                "localize",
+                str(logs),
+                "--method",
+                "paper",
+                "--ppcm",
+                "8",
+                "-q",
+                "-o",
+                str(tmp_path / "p.csv"),
+            ]
+        )
+        == 0
+    )
+    assert capsys.readouterr().out == ""
+
+
+@pytest.mark.parametrize(
+    "args_tail,words",
+    [
+        (["--eta", "1.5"], "eta"),
+        (["--ppcm", "0"], "ppcm"),
+        (["--area", "10,0,0,10"], "x1 > x0"),
+    ],
+)
+def test_bad_method_parameters_exit_2(simulated, capsys, args_tail, words):
+    logs, _ = simulated
+    assert main(["localize", str(logs), "--method", "paper", *args_tail]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and err.count("\n") == 1
+
+
+def test_bad_csv_is_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("touch,x_mm,y_mm,A\n1,0,0,1\n2,0,x,1\n3,5,5,1\n")
+    assert main(["localize", str(bad), "--method", "paper", "-o", str(tmp_path / "p.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"varskin: error: {bad}:3:3: ")
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_warnings_go_to_stderr(tmp_path, capsys):
+    f = tmp_path / "w.csv"
+    f.write_text("touch,x_mm,y_mm,A\n1,0,0,1\n1,0,0,nan\n2,5,0,2\n3,0,5,3\n4,5,5,nan\n")
+    assert main(["localize", str(f), "--method", "paper", "--ppcm", "16"]) == 0
+    err = capsys.readouterr().err
+    assert "2 non-finite" in err and "dropped touch(es) 4" in err
+
+
+def test_only_given_parameters_reach_the_method(simulated, monkeypatch, tmp_path):
+    """A method without eta/ppcm/area must not be handed them by default."""
+    seen = {}
+
+    def fake_localize(logs, **params):
+        seen.update(params)
+        return Predictions("fake", [SensorEstimate(s, 1.0, 1.0) for s in logs.sensors])
+
+    module = types.ModuleType("fake_method_for_test")
+    module.localize = fake_localize
+    monkeypatch.setitem(sys.modules, "fake_method_for_test", module)
+    import varskin.localize  # noqa: F401  (the registry module)
+
+    registry = sys.modules["varskin.localize"]
+    monkeypatch.setitem(registry.METHODS, "fake", "fake_method_for_test")
+    logs, _ = simulated
+    assert main(["localize", str(logs), "--method", "fake", "-q"]) == 0
+    assert seen == {}
+    assert main(["localize", str(logs), "--method", "fake", "-q", "--eta", "0.6"]) == 0
+    assert seen == {"eta": 0.6}
+
+
+def test_demo_runs(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--seed", "2", "--ppcm", "32"]) == 0
+    text = capsys.readouterr().out
+    assert "summary" in text and "paper: 30/30 sensors localized" in text
+    for name in ("logs.csv", "truth.csv", "pred_paper.csv", "pred_paper.json", "eval_paper.json"):
+        assert (out / name).stat().st_size > 0
+    assert (out / "plots_paper" / "map_S14.png").stat().st_size > 5000
+    assert (out / "plots_paper" / "predictions.png").stat().st_size > 5000
+
+
+def test_unwritable_output_is_one_line_exit_2(simulated, tmp_path, capsys):
+    logs, _ = simulated
+    target = tmp_path / "missing-folder" / "pred.csv"
+    assert (
+        main(["localize", str(logs), "--method", "paper", "--ppcm", "8", "-q", "-o", str(target)])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert err == f"varskin: error: {target}: cannot write (No such file or directory)\n"
+
+
+def test_plots_handle_error_circles_and_sensors_without_data(tmp_path):
+    import numpy as np
+
+    from varskin import plots
+    from varskin.pointlogs import PointLogs
+
+    xy = np.array([[x, y] for x in (0.0, 5.0, 10.0) for y in (0.0, 5.0)])
+    values = np.column_stack([np.arange(6.0), np.full(6, np.nan)])
+    logs = PointLogs(("A", "B"), np.arange(6), xy, values, np.ones(6, int))
+    for sensor in ("A", "B"):
+        path = plots.plot_point_log_map(logs, sensor, tmp_path / f"{sensor}.png", ppcm=8)
+        assert path.stat().st_size > 5000
+    predictions = Predictions(
+        "m",
+        [
+            SensorEstimate("A", 5.0, 2.0, sigma_mm=1.5),
+            SensorEstimate("B", None, None, status="nodata"),
+        ],
+    )
+    path = plots.plot_predictions(
+        predictions, tmp_path / "p.png", xy, {"A": (4.0, 2.5)}, outline_mm=(10.0, 5.0)
+    )
+    assert path.stat().st_size > 5000

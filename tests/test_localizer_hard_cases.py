@@ -1,0 +1,218 @@
+"""Hard cases for the default localizer: each is right within a stated tolerance or flagged.
+
+Every case also checks the invariants: one estimate per sensor, no NaN/inf anywhere
+(``SensorEstimate`` refuses them), a one-word status, and ``ok`` estimates have a sigma.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from varskin.localize import peakfit
+from varskin.pointlogs import PointLogs
+from varskin.predictions import OK
+from varskin.scene import ADC_MAX, Scene, SceneParams
+from varskin.simulate import simulate_session, uniform_grid
+
+TOL_MM = 2.0  # "right" for a hard case: within 2 mm of the truth (the paper's error band)
+
+
+def check(pred, n):
+    assert len(pred) == n
+    for p in pred:
+        assert p.status and " " not in p.status
+        if p.status == OK:
+            assert p.x_mm is not None and p.sigma_mm is not None and p.sigma_mm > 0
+    return pred
+
+
+def err(pred, truth, i) -> float:
+    e = pred.estimates[i]
+    return float(np.hypot(e.x_mm - truth[i, 0], e.y_mm - truth[i, 1]))
+
+
+def ok_errors(pred, truth) -> np.ndarray:
+    e = np.hypot(*(pred.xy() - truth).T)
+    return e[np.isfinite(e)]
+
+
+@pytest.fixture(scope="module")
+def grid(patch_b):
+    return uniform_grid(patch_b, 20, 5)
+
+
+def test_dead_sensor_is_flagged_dead(patch_b, grid):
+    scene = Scene.create(patch_b, 1)
+    scene.dead[4] = True
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    assert pred.estimates[4].status == "dead"
+    assert ok_errors(pred, s.truth).max() <= TOL_MM
+
+
+@pytest.mark.parametrize("headroom", [0.6, 0.25])
+def test_clipped_peak_is_censored_and_located_or_flagged(patch_b, grid, headroom):
+    scene = Scene.create(patch_b, 1)
+    scene.drift[7] = 0.0
+    scene.rest[7] = ADC_MAX - headroom * scene.peak[7]  # the peak's top clips at the ADC
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    logs = s.point_logs()
+    assert (logs.rest[7] + logs.values[:, 7] >= ADC_MAX - 1).sum() >= 1
+    pred = check(peakfit.localize(logs), 30)
+    est = pred.estimates[7]
+    if headroom > 0.5:  # a clipped tip: the flanks locate it
+        assert est.status == OK and err(pred, s.truth, 7) <= 0.5
+    else:  # most of the peak clipped: located within its error bar, or flagged saturated
+        assert est.status == "saturated" or err(pred, s.truth, 7) <= max(0.5, 2 * est.sigma_mm)
+
+
+def test_sensor_resting_at_the_adc_limit_is_saturated(patch_b, grid):
+    scene = Scene.create(patch_b, 1)
+    scene.rest[7] = ADC_MAX
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    assert pred.estimates[7].status == "saturated"
+
+
+def test_sensor_in_the_corner_and_outside_the_probes_hull(patch_b, grid):
+    scene = Scene.create(patch_b, 1)
+    scene.true_xy[0] = (1.0, 24.4)  # corner: beyond the outermost probe row and column
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    logs = s.point_logs()
+    pred = check(peakfit.localize(logs), 30)
+    corner = pred.estimates[0]
+    assert corner.status == OK and err(pred, s.truth, 0) <= TOL_MM
+    assert err(pred, s.truth, 0) <= 3 * corner.sigma_mm
+    # Probes only over x < 120 mm: the sensors beyond are never reported as located.
+    part = check(peakfit.localize(logs.subset(logs.xy_mm[:, 0] < 120)), 30)
+    beyond = [p for p, t in zip(part, s.truth) if t[0] > 128]
+    assert beyond and all(p.status != OK for p in beyond), [p.status for p in beyond]
+    assert ok_errors(part, s.truth).max() <= TOL_MM
+
+
+def test_two_sensors_3_mm_apart_are_both_located(patch_b, grid):
+    scene = Scene.create(patch_b, 1)
+    scene.true_xy[13] = scene.true_xy[12] + (3.0, 0.0)
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    for i in (12, 13):
+        assert pred.estimates[i].status == OK and err(pred, s.truth, i) <= 0.5
+    d = np.hypot(*(pred.xy()[13] - pred.xy()[12]))
+    assert d == pytest.approx(3.0, abs=0.6)
+
+
+@pytest.mark.parametrize("inverted", [None, True])
+def test_inverted_response_detected_or_configured(patch_b, grid, inverted):
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, params=SceneParams(inverted=True))
+    pred = check(peakfit.localize(s.point_logs(), inverted=inverted), 30)
+    assert all(p.status == OK for p in pred)
+    assert ok_errors(pred, s.truth).max() <= TOL_MM
+
+
+def test_offset_drift_over_the_session(patch_b, grid):
+    # Every sensor's offset moves by the full +-120 counts observed on real patches.
+    scene = Scene.create(patch_b, 2)
+    scene.drift = np.where(np.random.default_rng(2).random(30) < 0.5, -120.0, 120.0)
+    s = simulate_session(patch_b, grid, probe="robot", seed=2, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    e = ok_errors(pred, s.truth)
+    assert len(e) >= 27 and e.max() <= TOL_MM
+
+
+def test_missed_touches_are_detected_and_ignored(patch_b, grid):
+    s = simulate_session(patch_b, grid, probe="robot", seed=1)
+    logs = s.point_logs()
+    rng = np.random.default_rng(1)
+    missed = rng.choice(len(logs), 8, replace=False)
+    # No contact: every sensor reads its (drifting) rest, plus noise.
+    logs.values[missed] = s.scene.offset(logs.t_s[missed]) + rng.normal(0, 1, (8, 30))
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    for log in logs.logs():
+        loc._append(log)
+    loc.solve_all()
+    assert set(np.flatnonzero(loc._missed[: loc.n_logs])) == set(missed)
+    pred = check(loc.result(), 30)
+    for i, p in enumerate(pred):
+        if p.status == OK:
+            assert err(pred, s.truth, i) <= max(TOL_MM, 3 * p.sigma_mm)
+
+
+def test_nan_and_inf_samples(patch_b, grid):
+    s = simulate_session(patch_b, grid, probe="robot", seed=1)
+    logs = s.point_logs()
+    logs.values[3, 5] = np.nan
+    logs.values[40, 10] = np.inf
+    logs.values[41, :] = np.nan
+    logs.xy_mm[42] = (np.nan, 5.0)
+    pred = check(peakfit.localize(logs), 30)
+    assert all(p.status == OK for p in pred)
+    assert ok_errors(pred, s.truth).max() <= TOL_MM
+    logs.values[:, 6] = np.nan
+    assert check(peakfit.localize(logs), 30).estimates[6].status == "sparse"
+
+
+def test_duplicate_probe_locations(patch_b, grid):
+    s = simulate_session(patch_b, np.concatenate([grid, grid[:40]]), probe="robot", seed=1)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    assert all(p.status == OK for p in pred)
+    assert ok_errors(pred, s.truth).max() <= TOL_MM
+
+
+def test_collinear_probes_are_flagged(patch_b):
+    s = simulate_session(patch_b, uniform_grid(patch_b, 40, 1), probe="robot", seed=1)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    assert {p.status for p in pred} == {"collinear"}
+
+
+@pytest.mark.parametrize("k", [0, 1, 2])
+def test_fewer_than_three_probes(patch_b, grid, k):
+    logs = simulate_session(patch_b, grid, probe="robot", seed=1).point_logs().subset(np.arange(k))
+    pred = check(peakfit.localize(logs), 30)
+    assert {p.status for p in pred} == {"sparse"}
+
+
+@pytest.mark.parametrize("factor", [1e-9, 1e9])
+def test_values_scaled_by_huge_factors(patch_b, grid, factor):
+    s = simulate_session(patch_b, grid, probe="robot", seed=1)
+    logs = s.point_logs()
+    base = peakfit.localize(logs).xy()
+    logs.values = logs.values * factor
+    logs.rest, logs.rest_sd = logs.rest * factor, logs.rest_sd * factor
+    logs.sample_sd = logs.sample_sd * factor
+    pred = check(peakfit.localize(logs), 30)
+    assert all(p.status == OK for p in pred)
+    assert np.nanmax(np.abs(pred.xy() - base)) <= 1e-3
+
+
+def test_float32_input(patch_b, grid):
+    s = simulate_session(patch_b, grid, probe="robot", seed=1)
+    logs = s.point_logs()
+    base = peakfit.localize(logs).xy()
+    logs.values = logs.values.astype(np.float32)
+    logs.xy_mm = logs.xy_mm.astype(np.float32)
+    pred = check(peakfit.localize(logs), 30)
+    assert np.nanmax(np.abs(pred.xy() - base)) <= 0.05
+
+
+@pytest.mark.parametrize("probe", ["robot", "finger"])
+def test_scattered_non_grid_probes(patch_b, probe):
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([rng.uniform(0, 152.4, 150), rng.uniform(0, 25.4, 150)])
+    s = simulate_session(patch_b, pts, probe=probe, seed=1)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    e = ok_errors(pred, s.truth)
+    assert len(e) >= 28
+    assert np.sqrt((e**2).sum() / (len(e) - 1)) <= (0.4 if probe == "robot" else 1.2)
+
+
+def test_no_sensor_data_at_all():
+    logs = PointLogs(
+        sensors=("A", "B"),
+        touch=np.arange(5),
+        xy_mm=np.column_stack([np.arange(5.0), np.arange(5.0) % 2]),
+        values=np.zeros((5, 2)),
+        n_samples=np.ones(5, int),
+    )
+    pred = check(peakfit.localize(logs), 2)
+    assert all(p.status != OK for p in pred)

@@ -1,0 +1,158 @@
+"""``varskin localize``: point-log CSV in, one predicted position per sensor out.
+
+Method parameters reach the method only when the user gave them, so each method keeps
+its own defaults and no method is handed another method's parameters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import importlib
+import sys
+from pathlib import Path
+
+from varskin.errors import InputError
+
+# varskin.localize is shadowed by the function of that name on the package; fetch the module.
+registry = importlib.import_module("varskin.localize")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "localize",
+        help="localize every sensor from a point-log CSV",
+        description="Read a point-log CSV and predict each sensor's position (mm, patch frame). "
+        "Output columns: sensor,x_mm,y_mm,sigma_mm,snr_db,status.",
+    )
+    p.add_argument("pointlogs", metavar="POINTLOGS.csv", help="point-log CSV (touch,x_mm,y_mm,...)")
+    p.add_argument(
+        "--method",
+        choices=list(registry.METHODS),
+        default=registry.DEFAULT_METHOD,
+        help=f"localization method; default {registry.DEFAULT_METHOD}",
+    )
+    p.add_argument(
+        "--eta",
+        type=float,
+        help="paper method: keep pixels above ETA x the map's maximum, 0 < ETA < 1; default 0.65",
+    )
+    p.add_argument(
+        "--ppcm",
+        type=float,
+        help="paper method: interpolation resolution in pixels per cm; default 128",
+    )
+    p.add_argument(
+        "--area",
+        type=parse_area,
+        metavar="X0,Y0,X1,Y1",
+        help="paper method: area to interpolate over, mm in the patch frame; "
+        "default the bounding box of the probe locations",
+    )
+    p.add_argument("-o", "--output", metavar="PRED.csv", help="write predictions CSV here")
+    p.add_argument("--json", metavar="PRED.json", help="also write predictions as JSON")
+    p.add_argument(
+        "--plots",
+        metavar="DIR",
+        help="write PNGs: predictions.png and each sensor's point log map (map_<sensor>.png)",
+    )
+    p.add_argument(
+        "--plot-sensors",
+        metavar="S1,S2",
+        help="with --plots: only these sensors' point log maps; default all sensors",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="do not print the table")
+    p.set_defaults(func=run)
+
+
+def parse_area(text: str) -> tuple[float, float, float, float]:
+    parts = text.split(",")
+    try:
+        vals = tuple(float(v) for v in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != 4:
+        raise argparse.ArgumentTypeError(f"area must be X0,Y0,X1,Y1 in mm, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+@contextlib.contextmanager
+def writing():
+    """Turn a failed write (missing folder, no permission, full disk) into a one-line error."""
+    try:
+        yield
+    except OSError as e:
+        where = e.filename or "output"
+        raise InputError(f"{where}: cannot write ({e.strerror or e})") from None
+
+
+def method_params(args) -> dict:
+    """Only the parameters the user actually set."""
+    return {k: getattr(args, k) for k in ("eta", "ppcm", "area") if getattr(args, k) is not None}
+
+
+def print_warnings(logs) -> None:
+    for w in logs.warnings:
+        print(f"varskin: warning: {w}", file=sys.stderr)
+
+
+def prediction_table(predictions) -> str:
+    lines = [f"{'sensor':<8} {'x_mm':>8} {'y_mm':>8} {'sigma_mm':>8} {'snr_db':>7} status"]
+    for e in predictions:
+        lines.append(
+            f"{e.sensor:<8} {_f(e.x_mm):>8} {_f(e.y_mm):>8} {_f(e.sigma_mm):>8} "
+            f"{_f(e.snr_db, 1):>7} {e.status}"
+        )
+    return "\n".join(lines)
+
+
+def _f(v, digits: int = 2) -> str:
+    return "" if v is None else f"{v:.{digits}f}"
+
+
+def run(args) -> int:
+    from varskin.localize import localize
+    from varskin.pointlog_csv import read_point_logs
+
+    logs = read_point_logs(args.pointlogs)
+    print_warnings(logs)
+    params = method_params(args)
+    predictions = localize(logs, method=args.method, **params)
+    sensors = list(logs.sensors)
+    if args.plot_sensors:
+        sensors = [s.strip() for s in args.plot_sensors.split(",") if s.strip()]
+        unknown = [s for s in sensors if s not in logs.sensors]
+        if unknown:
+            raise InputError(f"--plot-sensors: no sensor {', '.join(unknown)} in {args.pointlogs}")
+    with writing():
+        if args.output:
+            predictions.to_csv(args.output)
+        if args.json:
+            predictions.to_json(args.json)
+        if args.plots:
+            write_plots(Path(args.plots), logs, predictions, sensors, params)
+    if not args.quiet:
+        print(prediction_table(predictions))
+        ok = sum(e.status == "ok" for e in predictions)
+        print(f"{predictions.method}: {ok}/{len(predictions)} sensors localized")
+    return 0
+
+
+def write_plots(
+    folder: Path, logs, predictions, sensors, params, truth=None, outline=None
+) -> list[Path]:
+    from varskin import plots
+
+    # The maps show the paper's steps; use the paper parameters the user gave, else its defaults.
+    map_params = {k: v for k, v in params.items() if k in ("eta", "ppcm", "area")}
+    truth = truth or {}
+    out = [
+        plots.plot_predictions(predictions, folder / "predictions.png", logs.xy_mm, truth, outline)
+    ]
+    for s in sensors:
+        out.append(
+            plots.plot_point_log_map(
+                logs, s, folder / f"map_{s}.png", truth_xy=truth.get(s), **map_params
+            )
+        )
+    return out

@@ -1,0 +1,351 @@
+"""Batched robust fit of a peak to many sensors' point log maps at once.
+
+Why a private module: the fit is the numerical core of the ``peakfit`` localizer and is
+shared by its batch and incremental paths, so both converge to the same fixed point.
+
+The model of one sensor's map, in that sensor's normalized units, is
+
+    m(p, t) = b0 + b1 tau + b2 tau^2 + a / (1 + (x - sx)^2 / wx^2 + (y - sy)^2 / wy^2)
+
+a Lorentzian bump at the sensor position ``s`` of height ``a`` and half widths ``wx``, ``wy``
+along the wires (a crossing's footprint is not round) over a
+floor that may drift smoothly in session time (``tau`` in minutes from the sensor's peak
+time, so weak priors on slope and curvature keep drift from mimicking a shift of the peak
+when the probe scans in order and time runs along x). Only the neighbourhood
+of the peak is fitted (a compact window of radius ~2.5 w), so the far tails, whose shape the
+model does not know, never matter; residuals get Cauchy weights so missed touches, outliers
+and a wrong shape cannot drag the estimate. All sensors are solved together with a
+vectorized Levenberg-Marquardt (numpy, no per-sensor Python loop), which keeps a full board
+fast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+N_PARAMS = 10  # sx, sy, log wx, log wy, a, b0, b1, b2, ridge along RX (y = sy), along TX
+SX, SY, LW, LWY, AMP, B0, B1, B2, CRX, CTX = range(N_PARAMS)
+MIN_WIDTH_SPACINGS = 0.3  # a footprint much narrower than the probe spacing is unresolvable
+MAX_WIDTH_SPACINGS = 15.0
+RIDGE_FRACTION = 0.35  # a wire ridge's width across the wire, in footprint half widths
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Knobs of the fit; defaults are chosen for robustness, not tuned to one scene."""
+
+    window_widths: float = 2.5  # fit radius in peak half-widths (response >= ~14% of the peak)
+    window_spacings: float = 2.0  # ... but never less than this many probe spacings
+    cauchy_c: float = 3.0  # residuals beyond ~c robust sigmas lose weight quickly
+    drift_prior_sd: float = 0.2  # floor slope prior, peak heights per minute (weak)
+    drift_curve_prior_sd: float = 0.03  # floor curvature prior, peak heights per minute^2
+    width_prior_sd: float = 1.0  # log-width prior around the starting width (weak)
+    aspect_prior_sd: float = 0.4  # prior on log(wx / wy): footprints are roughly round
+    shared_width_sd: float = 0.25  # log-width spread of sensors around the shared footprint
+    ridge_prior_sd: float = 0.1  # wire-ridge height prior, in peak heights
+    max_iter: int = 100
+    step_tol_mm: float = 2e-4
+
+
+def _xy(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Probe x, y broadcastable against (., S): P is (K,2) shared or (M,S,2) per sensor."""
+    if P.ndim == 2:
+        return P[:, 0:1], P[:, 1:2]
+    return P[..., 0], P[..., 1]
+
+
+def _per_touch(G: np.ndarray) -> np.ndarray:
+    return G[:, None] if G.ndim == 1 else G
+
+
+def lorentz(P: np.ndarray, theta: np.ndarray):
+    """Shape g (K,S), the x and y parts of the squared normalized distance, inverse widths^2."""
+    iwx = np.exp(-2.0 * theta[:, LW])
+    iwy = np.exp(-2.0 * theta[:, LWY])
+    X, Y = _xy(P)
+    dx = X - theta[None, :, SX]
+    dy = Y - theta[None, :, SY]
+    rx = dx * dx * iwx[None, :]
+    ry = dy * dy * iwy[None, :]
+    return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy)
+
+
+def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
+    """Compact fit window (K,S): 1 inside R, cosine taper to 0 at 1.5 R, exactly 0 beyond."""
+    w = np.exp(0.5 * (theta[:, LW] + theta[:, LWY]))
+    radius = np.maximum(s.window_widths * w, min_radius)
+    X, Y = _xy(P)
+    d = np.hypot(X - theta[None, :, SX], Y - theta[None, :, SY])
+    u = np.clip((d / radius[None, :] - 1.0) * 2.0, 0.0, 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * u))
+
+
+def ridges(P, theta, rho):
+    """Coupling along the sensor's own wires: narrow ridges at y = sy (RX) and x = sx (TX).
+
+    ``rho`` (S,) is the ridge width; returns the two profiles and their signed distances.
+    """
+    X, Y = _xy(P)
+    dy = Y - theta[None, :, SY]
+    dx = X - theta[None, :, SX]
+    r2 = 1.0 / (rho * rho)[None, :]
+    return np.exp(-0.5 * dy * dy * r2), np.exp(-0.5 * dx * dx * r2), dx, dy, r2
+
+
+def model(P, tau, theta, G=None, rho=None):
+    """Model values (K,S); ``G`` (K,) is each touch's relative pressing gain (default 1)."""
+    g, _, _ = lorentz(P, theta)
+    if G is not None:
+        g = g * _per_touch(G)
+    m = floor(tau, theta) + theta[None, :, AMP] * g
+    if rho is not None:
+        ry, rx, _, _, _ = ridges(P, theta, rho)
+        gg = 1.0 if G is None else _per_touch(G)
+        m = m + gg * (theta[None, :, CRX] * ry + theta[None, :, CTX] * rx)
+    return m
+
+
+def floor(tau, theta):
+    """The sensor's floor over session time: offset, slope and curvature.
+
+    ``tau`` (K,S) is each touch's time in minutes relative to the sensor's own peak time, so
+    the priors on slope and curvature mean the same for early and late sensors.
+    """
+    return theta[None, :, B0] + (theta[None, :, B1] + theta[None, :, B2] * tau) * tau
+
+
+def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
+    """Model (K,S) and its Jacobian (K,S,N_PARAMS)."""
+    g, (rx, ry), (iwx, iwy) = lorentz(P, theta)
+    a = theta[None, :, AMP]
+    k2 = 2.0 * a * g * g
+    if G is not None:
+        k2 = k2 * _per_touch(G)
+        g = g * _per_touch(G)
+    X, Y = _xy(P)
+    J = np.empty(g.shape + (N_PARAMS,))
+    J[..., SX] = k2 * (X - theta[None, :, SX]) * iwx[None, :]
+    J[..., SY] = k2 * (Y - theta[None, :, SY]) * iwy[None, :]
+    J[..., LW] = k2 * rx
+    J[..., LWY] = k2 * ry
+    J[..., AMP] = g
+    J[..., B0] = 1.0
+    J[..., B1] = tau
+    J[..., B2] = tau * tau
+    m = floor(tau, theta) + a * g
+    J[..., CRX] = 0.0
+    J[..., CTX] = 0.0
+    if rho is not None:
+        ry, rx, dx, dy, r2 = ridges(P, theta, rho)
+        gg = 1.0 if G is None else _per_touch(G)
+        cy, cx = theta[None, :, CRX], theta[None, :, CTX]
+        J[..., CRX] = gg * ry
+        J[..., CTX] = gg * rx
+        J[..., SY] += gg * cy * ry * dy * r2
+        J[..., SX] += gg * cx * rx * dx * r2
+        m = m + gg * (cy * ry + cx * rx)
+    return m, J
+
+
+@dataclass
+class FitResult:
+    theta: np.ndarray  # (S, N_PARAMS)
+    cov_xy: np.ndarray  # (S, 2, 2) in mm^2, scaled by the residual variance
+    scale: np.ndarray  # (S,) robust residual sigma (normalized units)
+    n_eff: np.ndarray  # (S,) effective number of points that carried the fit
+    converged: np.ndarray  # (S,) bool
+    last_step: np.ndarray  # (S,) mm moved in the last iteration (small: nearly converged)
+
+
+def fit(
+    P: np.ndarray,
+    tau: np.ndarray,
+    U: np.ndarray,
+    valid: np.ndarray,
+    theta0: np.ndarray,
+    min_radius: float,
+    noise_floor: np.ndarray,
+    settings: FitSettings = FitSettings(),
+    gain: np.ndarray | None = None,
+    width_mean: np.ndarray | None = None,
+    ridge_width: np.ndarray | None = None,
+    touch_var: tuple[np.ndarray, np.ndarray] | None = None,
+    scale0: np.ndarray | None = None,
+) -> FitResult:
+    """Robust windowed Levenberg-Marquardt for S sensors at once.
+
+    P (K,2) probe mm, tau (K,S) minutes from each sensor's peak time, U (K,S) normalized values (peak up, floor ~0),
+    valid (K,S) bool, theta0 (S,6) start, noise_floor (S,) smallest residual sigma allowed.
+    """
+    s = settings
+    S = U.shape[1]
+    spacing = min_radius / s.window_spacings
+    theta = theta0.astype(float).copy()
+    theta[:, [LW, LWY]] = np.clip(
+        theta[:, [LW, LWY]], np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+    )
+    lw_prior = 0.5 * (theta0[:, LW] + theta0[:, LWY])
+    K = U.shape[0]
+    G_all = np.ones(K) if gain is None else gain
+    # Only the touches near each sensor can carry weight (the window is compact): gather
+    # them into (M, S) arrays so a full board costs what its neighbourhoods cost.
+    w0 = np.exp(0.5 * (theta[:, LW] + theta[:, LWY]))
+    reach = 2.5 * np.maximum(s.window_widths * w0 * 1.6, min_radius)
+    dist = np.hypot(P[:, 0:1] - theta[None, :, SX], P[:, 1:2] - theta[None, :, SY])
+    inside = (dist <= reach[None, :]) & valid
+    M = max(int(inside.sum(axis=0).max()), 1)
+    order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
+    sel = np.take_along_axis(inside, order, axis=0)
+    start_xy = theta[:, :2].copy()
+    Pg = P[order]  # (M, S, 2)
+    tau = np.take_along_axis(tau, order, axis=0)
+    Uz = np.where(sel, np.take_along_axis(U, order, axis=0), 0.0)
+    vf = sel.astype(float)
+    gain = G_all[order]
+    P = Pg
+    lam = np.full(S, 1e-3)
+    warm_scale = scale0 is not None
+    scale = np.maximum(np.full(S, 0.3) if scale0 is None else scale0, noise_floor)
+    active = np.ones(S, bool)
+    converged = np.zeros(S, bool)
+    last_step = np.full(S, np.inf)
+    # Gaussian priors per sensor: drift slope and curvature ~ 0; log widths near ``width_mean``
+    # (the probe's footprint, shared by all sensors) or, without it, weakly near the start.
+    Q = np.zeros((S, N_PARAMS, N_PARAMS))
+    Q[:, B1, B1] = 1.0 / s.drift_prior_sd**2
+    Q[:, B2, B2] = 1.0 / s.drift_curve_prior_sd**2
+    Q[:, CRX, CRX] = Q[:, CTX, CTX] = 1.0 / s.ridge_prior_sd**2
+    rho = ridge_width
+    mu = np.zeros((S, N_PARAMS))
+    if width_mean is None:
+        mean_w = np.zeros(N_PARAMS)
+        mean_w[[LW, LWY]] = 0.5
+        aspect = np.zeros(N_PARAMS)
+        aspect[LW], aspect[LWY] = 1.0, -1.0
+        Q += (np.outer(mean_w, mean_w) / s.width_prior_sd**2 + np.outer(aspect, aspect) / s.aspect_prior_sd**2)[None]
+        mu[:, LW] = lw_prior
+        mu[:, LWY] = lw_prior
+    else:
+        Q[:, LW, LW] = Q[:, LWY, LWY] = 1.0 / s.shared_width_sd**2
+        mu[:, LW] = width_mean[:, 0]
+        mu[:, LWY] = width_mean[:, 1]
+
+    def prior_cost(th, cols):
+        d = th - mu[cols]
+        return np.einsum("sp,spq,sq->s", d, Q[cols], d)
+
+    def weights_for(th, res, sc, cols):
+        win = window(P[:, cols], th, min_radius, s) * vf[:, cols]
+        z = res / (s.cauchy_c * sc[None, :])
+        return win, win / (1.0 + z * z)
+
+    def cost(th, sc, cols, win):
+        # The window stays where the iteration started: moving the peak away from the data
+        # must not make the cost vanish.
+        r = Uz[:, cols] - model(
+            P[:, cols], tau[:, cols], th, gain[:, cols], None if rho is None else rho[cols]
+        )
+        z2 = (r / (s.cauchy_c * sc[None, :])) ** 2
+        # Cauchy loss over the window: bounded influence of any single touch.
+        c = (win * np.log1p(z2)).sum(axis=0) * (s.cauchy_c * sc) ** 2
+        return c + prior_cost(th, cols) * sc**2
+
+    for it in range(s.max_iter):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        th = theta[idx]
+        m, J = jacobian(P[:, idx], tau[:, idx], th, gain[:, idx], None if rho is None else rho[idx])
+        res = Uz[:, idx] - m
+        win, wts = weights_for(th, res, scale[idx], idx)
+        # M-estimate of the residual scale over the window, floored by the measured noise.
+        wsum = np.maximum(win.sum(axis=0), 1e-12)
+        sc_new = np.sqrt((wts * res * res).sum(axis=0) / wsum) * 1.3
+        early = it < 2 and not warm_scale
+        sc = np.maximum(np.maximum(sc_new, scale[idx]) if early else sc_new, noise_floor[idx])
+        # The scale settles in a few iterations; freezing it then lets LM converge fast.
+        sc = np.where(it < 8, sc, scale[idx])
+        scale[idx] = sc
+        _, wts = weights_for(th, res, sc, idx)
+        H = np.einsum("ks,ksp,ksq->spq", wts, J, J)
+        g = np.einsum("ks,ksp,ks->sp", wts, J, res)
+        # Weak priors keep the floor slope and the width sane when few points carry the fit.
+        sc2 = (sc * sc)[:, None, None]
+        g -= np.einsum("spq,sq->sp", Q[idx], th - mu[idx]) * sc2[:, :, 0]
+        H = H + Q[idx] * sc2
+        c0 = cost(th, sc, idx, win)
+        accepted = np.zeros(idx.size, bool)
+        step = np.zeros_like(th)
+        lam_i = lam[idx]
+        for _ in range(6):
+            todo = ~accepted
+            if not todo.any():
+                break
+            Hd = H[todo] + np.eye(N_PARAMS)[None] * (
+                lam_i[todo, None, None] * (np.diagonal(H[todo], axis1=1, axis2=2)[:, None, :] + 1e-9)
+            )
+            try:
+                d = np.linalg.solve(Hd, g[todo][..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                d = np.stack([np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(Hd, g[todo])])
+            d[:, [LW, LWY]] = np.clip(d[:, [LW, LWY]], -0.5, 0.5)
+            d[:, [SX, SY]] = np.clip(d[:, [SX, SY]], -0.5 * min_radius, 0.5 * min_radius)
+            cand = th[todo] + d
+            cand[:, AMP] = np.maximum(cand[:, AMP], 1e-6)
+            cand[:, [LW, LWY]] = np.clip(
+                cand[:, [LW, LWY]], np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+            )
+            ok = cost(cand, sc[todo], idx[todo], win[:, todo]) <= c0[todo] * (1 + 1e-12)
+            ok &= np.isfinite(cand).all(axis=1)
+            sub = np.flatnonzero(todo)
+            step[sub[ok]] = cand[ok] - th[sub[ok]]
+            accepted[sub[ok]] = True
+            lam_i[sub[ok]] *= 0.3
+            lam_i[sub[~ok]] *= 8.0
+        lam[idx] = np.clip(lam_i, 1e-9, 1e9)
+        theta[idx] = th + step
+        moved = np.hypot(step[:, SX], step[:, SY])
+        last_step[idx] = np.where(accepted, moved, last_step[idx])
+        done = (accepted & (moved < s.step_tol_mm) & (np.abs(step[:, [LW, LWY]]).max(axis=1) < 1e-4)) | ~accepted
+        done &= it >= 2
+        converged[idx[done & accepted]] = True
+        converged[idx[done & ~accepted]] = True  # no better point nearby: a local minimum
+        active[idx[done]] = False
+    # Final weights and covariance at the solution.
+    m, J = jacobian(P, tau, theta, gain, rho)
+    res = Uz - m
+    win, wts = weights_for(theta, res, scale, np.arange(S))
+    wsum = np.maximum(win.sum(axis=0), 1e-12)
+    H = np.einsum("ks,ksp,ksq->spq", wts, J, J)
+    H = H + Q * (scale * scale)[:, None, None]
+    # Residual variance of the fit (robustly weighted), with the dof the window leaves.
+    n_eff = wts.sum(axis=0)
+    rss = (wts * res * res).sum(axis=0)
+    var = rss / np.maximum(n_eff - N_PARAMS, 1.0)
+    var = np.maximum(var, noise_floor**2)
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        Hinv = np.linalg.pinv(H)
+    cov_xy = Hinv[:, :2, :2] * var[:, None, None]
+    if touch_var is not None:
+        # Where each touch landed and how hard it pressed are only known to their posterior
+        # variance; propagate that through the fit (first order: d theta / d touch).
+        v_lg, v_d = touch_var[0][order].T, touch_var[1][order].T  # (S, M)
+        Mi = np.einsum("spq,ksq->spk", Hinv[:, :2, :], wts[..., None] * J)  # (S, 2, M)
+        bump = (m - floor(tau, theta)).T  # (S, M)
+        jx, jy = J[..., SX].T, J[..., SY].T
+        for ax in (0, 1):
+            Ma = Mi[:, ax, :]
+            cov_xy[:, ax, ax] += (Ma * Ma * (v_d * (jx * jx + jy * jy) + v_lg * bump * bump)).sum(
+                axis=1
+            )
+    del wsum
+    # A sensor that wandered beyond the gathered touches would miss data: not converged.
+    strayed = np.hypot(*(theta[:, :2] - start_xy).T) > reach - 1.5 * np.maximum(
+        s.window_widths * np.exp(0.5 * (theta[:, LW] + theta[:, LWY])), min_radius
+    )
+    converged &= ~strayed
+    return FitResult(theta, cov_xy, scale, n_eff, converged, np.where(strayed, np.inf, last_step))

@@ -1,0 +1,821 @@
+"""``peakfit``: robust per-sensor peak fit with honest error bars, batch or incremental.
+
+Why it exists: the paper's threshold-centroid has a large error that is not noise (the
+coarse grid aliases the peak, the threshold depends on each sensor's floor, the centroid is
+pulled inwards at the edge). This method fits each sensor's point log map with a Lorentzian
+bump over its own (drifting) floor, only near the peak and with a robust loss, solving all
+sensors at once in numpy. A ``Localizer`` takes one point log at a time and re-fits only the
+sensors the new touch informs, warm-started, so a live session sees estimates as it goes;
+``localize`` is the same machinery fed with every log at once. See docs/localizer.md.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from varskin.errors import InputError
+from varskin.localize import _peak_model as pm
+from varskin.localize._layout_prior import shrink_to_wires
+from varskin.patch import Patch
+from varskin.pointlogs import PointLog, PointLogs
+from varskin.predictions import OK, Predictions, SensorEstimate
+from varskin.scene import ADC_MAX
+
+NAME = "peakfit"
+# sigma_mm is defined so that the circle of radius 2 sigma holds the true position with 95%
+# probability for a 2-D Gaussian error: r95 = s * sqrt(2 ln 20) for per-axis sd s.
+R95_PER_AXIS_SD = math.sqrt(2.0 * math.log(20.0))
+
+POLISH_ROUNDS = 4  # alternations of touch nuisances and sensor fits in a batch solve
+UPDATE_ITERATIONS = 4  # a live update warm-starts, so a few LM iterations suffice
+
+DEFAULTS: dict = {
+    "inverted": None,  # None: detect from the maps; True/False: the bench's sign
+    "patch": None,  # a Patch: enables the wire layout prior (sensor names -> tx/rx wires)
+    "wires": None,  # or {sensor: (tx, rx)} for the same purpose
+    "layout_prior": True,  # use the wire prior when wires are known
+    "wire_scatter_mm": 0.25,  # smallest scatter of crossings around their wire's line
+    "min_snr": 8.0,  # fitted peak / per-touch noise below this: "dead"
+    "max_sigma_mm": 5.0,  # larger uncertainty than this: "uncertain"
+    "spacing_mm": None,  # typical probe spacing; None: median nearest-neighbour distance
+    "window_widths": pm.FitSettings.window_widths,
+    "cauchy_c": pm.FitSettings.cauchy_c,
+}
+
+# Statuses (one word each; see docs/localizer.md)
+DEAD = "dead"  # no response above the noise
+SATURATED = "saturated"  # the sensor's readings sit at the ADC limit
+SPARSE = "sparse"  # too few usable touches near the sensor (or in total)
+COLLINEAR = "collinear"  # the probes lie on a line: one coordinate is unobservable
+OUTSIDE = "outside"  # the peak lies beyond the probed area: extrapolation refused
+UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_mm)
+FALLBACK = "fallback"  # the peak fit failed its sanity checks; x,y from a robust centroid
+WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
+WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
+
+
+@contextmanager
+def _quiet():
+    """All-NaN columns are expected (dead or missing sensors) and become statuses."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with np.errstate(all="ignore"):
+            yield
+
+
+def check_params(params: dict) -> dict:
+    unknown = set(params) - set(DEFAULTS)
+    if unknown:
+        raise InputError(
+            f"{NAME}: unknown parameter(s) {', '.join(sorted(unknown))}; "
+            f"known: {', '.join(DEFAULTS)}"
+        )
+    out = {**DEFAULTS, **params}
+    for key in ("wire_scatter_mm", "min_snr", "max_sigma_mm", "window_widths", "cauchy_c"):
+        v = out[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or not math.isfinite(v):
+            raise InputError(f"{NAME}: {key} must be a positive number, got {v!r}")
+    sp = out["spacing_mm"]
+    if sp is not None and (isinstance(sp, bool) or not isinstance(sp, (int, float)) or not sp > 0):
+        raise InputError(f"{NAME}: spacing_mm must be a positive number, got {sp!r}")
+    if out["inverted"] not in (None, True, False):
+        raise InputError(f"{NAME}: inverted must be true, false or unset, got {out['inverted']!r}")
+    if out["patch"] is not None and not isinstance(out["patch"], Patch):
+        raise InputError(f"{NAME}: patch must be a varskin.patch.Patch")
+    return out
+
+
+def _wire_groups(sensors: tuple[str, ...], patch: Patch | None, wires) -> tuple[np.ndarray, np.ndarray] | None:
+    table: dict[str, tuple[int, int]] = {}
+    if patch is not None:
+        table = {s.name: (s.tx, s.rx) for s in patch.sensors}
+    if wires is not None:
+        try:
+            table = {str(k): (int(v[0]), int(v[1])) for k, v in dict(wires).items()}
+        except (TypeError, ValueError, IndexError):
+            raise InputError(f"{NAME}: wires must map sensor name -> (tx, rx)") from None
+    if not table:
+        return None
+    tx = np.array([table.get(s, (-1, -1))[0] for s in sensors])
+    rx = np.array([table.get(s, (-1, -1))[1] for s in sensors])
+    return tx, rx
+
+
+@dataclass
+class _SensorFit:
+    """What the last solve left for every sensor (arrays over sensors)."""
+
+    theta: np.ndarray  # (N, 6) normalized units
+    floor: np.ndarray  # (N,) normalization: value = floor + amp * u
+    amp: np.ndarray
+    cov_xy: np.ndarray  # (N, 2, 2)
+    scale: np.ndarray  # residual sigma, normalized
+    noise: np.ndarray  # per-touch noise, normalized
+    n_eff: np.ndarray
+    converged: np.ndarray
+    fitted: np.ndarray  # (N,) bool: a fit exists
+    start: np.ndarray  # (N, 2) where the fit started (top of the map)
+    n_clipped: np.ndarray  # (N,) touches excluded as clipped
+    tc: np.ndarray  # (N,) session time (min) of the sensor's largest reading: drift origin
+
+
+class Localizer:
+    """Incremental localizer: ``update(point_log)`` after each touch, ``result()`` any time.
+
+    ``Localizer(sensors, rest=None, rest_sd=None, **params)``; values of each ``PointLog`` are
+    relative to rest (as in ``PointLogs``). ``rest``/``rest_sd`` (raw counts) enable the SNR
+    and ADC-clipping checks.
+    """
+
+    def __init__(self, sensors, rest=None, rest_sd=None, **params) -> None:
+        self.params = check_params(params)
+        self.sensors = tuple(str(s) for s in sensors)
+        n = len(self.sensors)
+        if n == 0:
+            raise InputError(f"{NAME}: no sensors")
+        self.rest = _finite_or_none(rest, n, "rest")
+        self.rest_sd = _finite_or_none(rest_sd, n, "rest_sd")
+        self.settings = pm.FitSettings(
+            window_widths=float(self.params["window_widths"]), cauchy_c=float(self.params["cauchy_c"])
+        )
+        self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
+        cap = 64
+        self._k = 0
+        self._P = np.zeros((cap, 2))
+        self._V = np.zeros((cap, n))
+        self._noise = np.full((cap, n), np.nan)
+        self._t = np.zeros(cap)
+        self._has_time = True
+        self._t0: float | None = None
+        self._nn = np.zeros(cap)  # each probe point's distance to its nearest distinct neighbour
+        # Per-touch nuisances shared by all sensors: log pressing gain and placement offset
+        # (where the probe really landed minus where the log says), plus missed touches.
+        self._lg = np.zeros(cap)
+        self._dxy = np.zeros((cap, 2))
+        self._missed = np.zeros(cap, bool)
+        self._v_lg = np.zeros(cap)  # posterior variances of the touch nuisances
+        self._v_d = np.zeros(cap)
+        self.gain_sd = 0.2  # prior scale of log gain, re-estimated from the data (EM)
+        self.place_sd_mm = 0.5  # prior scale of placement error per axis, re-estimated
+        self._dirty = False  # touches added since the last full polish
+        self._next_full = 8  # the live view re-solves everything when the session doubles
+        self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
+        self._sign = 1.0
+        self._spacing_used: float | None = None
+        self.fit = _SensorFit(
+            theta=np.zeros((n, pm.N_PARAMS)),
+            floor=np.zeros(n),
+            amp=np.ones(n),
+            cov_xy=np.zeros((n, 2, 2)),
+            scale=np.ones(n),
+            noise=np.zeros(n),
+            n_eff=np.zeros(n),
+            converged=np.zeros(n, bool),
+            fitted=np.zeros(n, bool),
+            start=np.zeros((n, 2)),
+            n_clipped=np.zeros(n, int),
+            tc=np.zeros(n),
+        )
+
+    # --- data intake -------------------------------------------------------------------
+
+    def _grow(self) -> None:
+        cap = 2 * len(self._t)
+        for name in ("_P", "_V", "_noise"):
+            a = getattr(self, name)
+            b = np.full((cap,) + a.shape[1:], np.nan if name == "_noise" else 0.0)
+            b[: self._k] = a[: self._k]
+            setattr(self, name, b)
+        for name in ("_t", "_nn", "_lg", "_dxy", "_missed", "_v_lg", "_v_d"):
+            a = getattr(self, name)
+            b = np.zeros((cap,) + a.shape[1:], a.dtype)
+            b[: self._k] = a[: self._k]
+            setattr(self, name, b)
+
+    def _append(self, log: PointLog) -> bool:
+        """Store one log; False if it carries no usable position."""
+        x, y = float(log.x_mm), float(log.y_mm)
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return False
+        v = np.asarray(log.values, dtype=float).reshape(-1)
+        if v.size != len(self.sensors):
+            raise InputError(
+                f"{NAME}: point log {log.touch} has {v.size} values for {len(self.sensors)} sensors"
+            )
+        if self._k == len(self._t):
+            self._grow()
+        k = self._k
+        self._P[k] = (x, y)
+        self._V[k] = np.where(np.isfinite(v), v, np.nan)
+        if log.sample_sd is not None:
+            sd = np.asarray(log.sample_sd, float).reshape(-1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                self._noise[k] = sd / math.sqrt(max(int(log.n_samples), 1))
+        if log.t_s is None or not math.isfinite(float(log.t_s)):
+            self._has_time = False
+        t = float(log.t_s) if self._has_time and log.t_s is not None else float(k) * 7.5
+        if self._t0 is None:
+            self._t0 = t
+        self._t[k] = t
+        # Keep nearest-neighbour distances current: the probe spacing sets the window floor.
+        if k:
+            d = np.hypot(self._P[:k, 0] - x, self._P[:k, 1] - y)
+            d = np.where(d > 1e-6, d, np.inf)
+            self._nn[k] = d.min()
+            self._nn[:k] = np.minimum(self._nn[:k], d)
+        else:
+            self._nn[k] = np.inf
+        self._k += 1
+        return True
+
+    # --- views of the stored data ------------------------------------------------------
+
+    @property
+    def n_logs(self) -> int:
+        return self._k
+
+    def _tau(self) -> np.ndarray:
+        # Session time in minutes from the first log; without times, ~7.5 s per touch.
+        if self._has_time:
+            return (self._t[: self._k] - (self._t0 or 0.0)) / 60.0
+        return np.arange(self._k) * 7.5 / 60.0
+
+    def spacing(self) -> float:
+        if self.params["spacing_mm"] is not None:
+            return float(self.params["spacing_mm"])
+        nn = self._nn[: self._k]
+        nn = nn[np.isfinite(nn)]
+        return float(np.median(nn)) if nn.size else 1.0
+
+    def _detect_sign(self) -> float:
+        if self.params["inverted"] is not None:
+            return -1.0 if self.params["inverted"] else 1.0
+        V = self._V[: self._k]
+        if self._k < 3 or not np.isfinite(V).any():
+            return self._sign
+        with np.errstate(all="ignore"):
+            med = np.median(V, axis=0) if np.isfinite(V).all() else np.nanmedian(V, axis=0)
+            up = np.nanmax(V, axis=0) - med
+            down = med - np.nanmin(V, axis=0)
+        # The bench decides the sign for every sensor: a majority of the sensors that are clear.
+        n_up = int(np.sum(up > 1.5 * down))
+        n_down = int(np.sum(down > 1.5 * up))
+        if n_down > n_up:
+            return -1.0
+        if n_up > n_down:
+            return 1.0
+        return self._sign
+
+    def _clipped(self, cols: np.ndarray) -> np.ndarray:
+        """(K, len(cols)) touches whose raw reading sat at the ADC limit (censored, not data)."""
+        K = self._k
+        if self.rest is None:
+            return np.zeros((K, cols.size), bool)
+        rest = self.rest[cols]
+        sd = self.rest_sd[cols] if self.rest_sd is not None else np.ones(cols.size)
+        margin = np.maximum(3.0 * sd, 1.0)
+        # Only raw board counts can clip; rescaled data (rest beyond the ADC range) cannot.
+        raw_like = np.full(cols.size, self._raw_counts())
+        raw = rest[None, :] + self._V[:K][:, cols]
+        clip = (raw >= ADC_MAX - margin[None, :]) | (raw <= margin[None, :])
+        return clip & raw_like[None, :]
+
+    def _raw_counts(self) -> bool:
+        """Do rest values look like Muca ADC counts (so ADC clipping can be judged)?"""
+        if self.rest is None or not np.isfinite(self.rest).any():
+            return False
+        med = float(np.nanmedian(self.rest))
+        return 100.0 <= med <= ADC_MAX
+
+    # --- solving -----------------------------------------------------------------------
+
+    def _solve(self, cols: np.ndarray, warm: np.ndarray, max_iter: int | None = None) -> None:
+        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit."""
+        K = self._k
+        if cols.size == 0 or K == 0:
+            return
+        P = self._P[:K] + self._dxy[:K]
+        tau = self._tau()
+        V = self._V[:K][:, cols] * self._sign
+        clipped = self._clipped(cols)
+        valid = np.isfinite(V) & ~clipped & ~self._missed[:K, None]
+        Vv = np.where(valid, V, np.nan)
+        f = self.fit
+        with np.errstate(all="ignore"):
+            floor = np.median(Vv, axis=0) if valid.all() else np.nanmedian(Vv, axis=0)
+            top = np.nanmax(Vv, axis=0)
+        floor = np.where(np.isfinite(floor), floor, 0.0)
+        amp = top - floor
+        amp = np.where(np.isfinite(amp) & (amp > 0), amp, 1.0)
+        U = (np.where(valid, V, 0.0) - floor[None, :]) / amp[None, :]
+        nz = self._noise[:K][:, cols]
+        with np.errstate(all="ignore"):
+            fin = np.isfinite(nz)
+            noise = (np.median(nz, axis=0) if fin.all() else np.nanmedian(nz, axis=0)) / amp
+        noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
+        h = self.spacing()
+        min_radius = self.settings.window_spacings * h
+        # The map's top after removing the slow floor trend: a drift as large as the peak
+        # must not put the start at the session's first or last touches.
+        D = U - _floor_trend(U, valid)
+        theta0 = self._initial(P, D, valid, h)
+        kmax = np.argmax(np.where(valid, D, -np.inf), axis=0)
+        tc = tau[kmax]
+        theta0[:, pm.B0] += np.take_along_axis(U - D, kmax[None, :], axis=0)[0]
+        tau = tau[:, None] - tc[None, :]
+        start = theta0[:, :2].copy()
+        # A previous fit far from where the data now peak is no start: begin afresh there,
+        # exactly as a batch solve would.
+        w_old = np.exp(0.5 * (f.theta[cols, pm.LW] + f.theta[cols, pm.LWY]))
+        far = np.hypot(*(f.theta[cols, :2] - start).T) > np.maximum(2.0 * w_old, 2.0 * h)
+        warm = warm & f.fitted[cols] & ~far & np.isfinite(f.theta[cols]).all(axis=1)
+        if warm.any():
+            # Re-express the previous fit in the new normalization and peak time, start there.
+            c = cols[warm]
+            old = f.theta[c].copy()
+            ra = f.amp[c] / amp[warm]
+            old[:, [pm.AMP, pm.B1, pm.B2, pm.CRX, pm.CTX]] *= ra[:, None]
+            old[:, pm.B0] = (old[:, pm.B0] * f.amp[c] + f.floor[c] - floor[warm]) / amp[warm]
+            dt = tc[warm] - f.tc[c]
+            b1, b2 = old[:, pm.B1].copy(), old[:, pm.B2].copy()
+            old[:, pm.B0] += b1 * dt + b2 * dt * dt
+            old[:, pm.B1] = b1 + 2.0 * b2 * dt
+            theta0[warm] = old
+        res = pm.fit(
+            P,
+            tau,
+            U,
+            valid,
+            theta0,
+            min_radius,
+            np.maximum(noise, 1e-9),
+            self.settings if max_iter is None else replace(self.settings, max_iter=max_iter),
+            gain=np.exp(self._lg[:K]),
+            width_mean=None if self.shared_lw is None else np.tile(self.shared_lw, (cols.size, 1)),
+            ridge_width=self._ridge_width(cols.size, theta0),
+            touch_var=(np.full(K, self.gain_sd**2), np.full(K, self.place_sd_mm**2)),
+            scale0=np.where(warm, f.scale[cols] * f.amp[cols] / amp, 0.3) if warm.any() else None,
+        )
+        f.theta[cols] = res.theta
+        f.floor[cols] = floor
+        f.amp[cols] = amp
+        f.cov_xy[cols] = res.cov_xy
+        f.scale[cols] = res.scale
+        f.noise[cols] = noise
+        f.n_eff[cols] = res.n_eff
+        # A live update stops after a few iterations: nearly still counts as converged.
+        f.converged[cols] = res.converged | (res.last_step < 0.02 * h)
+        f.fitted[cols] = True
+        f.start[cols] = start
+        f.n_clipped[cols] = clipped.sum(axis=0)
+        f.tc[cols] = tc
+
+    def _initial(self, P, U, valid, h) -> np.ndarray:
+        """Cold start: centre of the map's top, width by a small search, floor and height."""
+        S = U.shape[1]
+        Um = np.where(valid, U, -np.inf)
+        kmax = np.argmax(Um, axis=0)
+        pk = P[kmax]  # (S, 2)
+        d = np.hypot(P[:, 0:1] - pk[None, :, 0], P[:, 1:2] - pk[None, :, 1])
+        # Floor-subtracted weighted centroid of the top half near the maximum.
+        wts = np.clip(np.where(valid, U, 0.0) - 0.5, 0.0, None) * (d <= 2.0 * h)
+        wsum = wts.sum(axis=0)
+        cx = np.where(wsum > 0, (wts * P[:, 0:1]).sum(axis=0) / np.maximum(wsum, 1e-12), pk[:, 0])
+        cy = np.where(wsum > 0, (wts * P[:, 1:2]).sum(axis=0) / np.maximum(wsum, 1e-12), pk[:, 1])
+        theta = np.zeros((S, pm.N_PARAMS))
+        theta[:, pm.SX], theta[:, pm.SY] = cx, cy
+        best = np.full(S, np.inf)
+        Uz = np.where(valid, U, 0.0)
+        vf = valid.astype(float)
+        for wc in (0.6 * h, 1.0 * h, 1.6 * h, 2.5 * h):
+            th = theta.copy()
+            th[:, pm.LW] = th[:, pm.LWY] = np.log(wc)
+            g, _, _ = pm.lorentz(P, th)
+            win = pm.window(P, th, self.settings.window_spacings * h, self.settings) * vf
+            # Weighted linear least squares for height and floor at this width.
+            s0, s1, s2 = win.sum(0), (win * g).sum(0), (win * g * g).sum(0)
+            t0, t1 = (win * Uz).sum(0), (win * g * Uz).sum(0)
+            det = s0 * s2 - s1 * s1
+            ok = np.abs(det) > 1e-12
+            a = np.where(ok, (s0 * t1 - s1 * t0) / np.where(ok, det, 1), 1.0)
+            b = np.where(ok, (s2 * t0 - s1 * t1) / np.where(ok, det, 1), 0.0)
+            r = Uz - b[None, :] - a[None, :] * g
+            sse = (win * r * r).sum(0) / np.maximum(s0, 1e-12)
+            better = (sse < best) & (a > 0)
+            best = np.where(better, sse, best)
+            theta[better, pm.LW] = theta[better, pm.LWY] = np.log(wc)
+            theta[better, pm.AMP] = a[better]
+            theta[better, pm.B0] = b[better]
+        unset = ~np.isfinite(best)
+        theta[unset, pm.LW] = theta[unset, pm.LWY] = np.log(h)
+        theta[unset, pm.AMP] = 1.0
+        theta[unset, pm.B0] = 0.0
+        return theta
+
+    def _touch_nuisances(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Re-estimate gain and placement offset of touches ``rows`` from the sensor models.
+
+        Every sensor that sees a touch says something about how hard and where it landed;
+        pooled over sensors (Gauss-Newton with Gaussian priors of the current scales) they
+        pin the touch down. Returns the posterior variances (log gain, mean axis mm^2).
+        """
+        f = self.fit
+        cols = np.flatnonzero(f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0))
+        R = rows.size
+        if cols.size == 0 or R == 0:
+            return np.zeros(R), np.zeros(R)
+        th = f.theta[cols]
+        P0 = self._P[rows]
+        tau = self._tau()[rows][:, None] - f.tc[cols][None, :]
+        V = self._V[rows][:, cols] * self._sign
+        U = (V - f.floor[cols]) / f.amp[cols]
+        valid = np.isfinite(U)
+        if self.rest is not None:
+            valid &= ~self._clipped(cols)[rows]
+        U = np.where(valid, U, 0.0)
+        min_radius = self.settings.window_spacings * self.spacing()
+        scale = np.maximum(f.scale[cols], 1e-9)
+        lg = self._lg[rows].copy()
+        d = self._dxy[rows].copy()
+        rho = self._ridge_width(cols.size, th)
+        prior = np.array([1.0 / self.gain_sd**2, 1.0 / self.place_sd_mm**2, 1.0 / self.place_sd_mm**2])
+        H = np.zeros((R, 3, 3))
+        for _ in range(3):
+            Pe = P0 + d
+            G = np.exp(lg)
+            m, J = pm.jacobian(Pe, tau, th, G, rho)
+            res = U - m
+            win = pm.window(Pe, th, min_radius, self.settings) * valid
+            z = res / (self.settings.cauchy_c * scale[None, :])
+            w = win / (1.0 + z * z) / (scale * scale)[None, :]
+            bump = m - pm.floor(tau, th)
+            Jt = np.stack([bump, -J[..., pm.SX], -J[..., pm.SY]], axis=-1)
+            H = np.einsum("rs,rsp,rsq->rpq", w, Jt, Jt) + np.diag(prior)[None]
+            cur = np.column_stack([lg, d])
+            g = np.einsum("rs,rsp,rs->rp", w, Jt, res) - prior[None, :] * cur
+            step = np.linalg.solve(H, g[..., None])[..., 0]
+            lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), -3.0, 1.0)
+            lim = 4.0 * self.place_sd_mm + 0.1
+            d = np.clip(d + np.clip(step[:, 1:], -lim, lim), -lim, lim)
+        cov = np.linalg.inv(H)
+        self._v_lg[rows] = cov[:, 0, 0]
+        self._v_d[rows] = 0.5 * (cov[:, 1, 1] + cov[:, 2, 2])
+        self._lg[rows] = lg
+        self._dxy[rows] = d
+        # A touch that the models say should have lit sensors up but did not: no contact.
+        # Judged without the robust weights (which would hide exactly this touch): the
+        # touch's response relative to the models' prediction, over the windows it is in.
+        Pe = P0 + d
+        m, _ = pm.jacobian(Pe, tau, th, None, rho)
+        bump = m - pm.floor(tau, th)
+        resp = U - pm.floor(tau, th)
+        win = pm.window(Pe, th, min_radius, self.settings) * valid / (scale * scale)[None, :]
+        expected = (win * bump * bump).sum(axis=1)
+        ratio = (win * bump * resp).sum(axis=1) / np.maximum(expected, 1e-300)
+        # The models must predict a clear response (>= ~10 sigma summed) for a verdict.
+        self._missed[rows] = (expected > 100.0) & (ratio < 0.3)
+        return cov[:, 0, 0], 0.5 * (cov[:, 1, 1] + cov[:, 2, 2])
+
+    def _polish(self, rounds: int) -> None:
+        """Alternate: touch nuisances given the sensors, then the sensors given the touches."""
+        K = self._k
+        n = len(self.sensors)
+        for _ in range(rounds):
+            self._shared_width()
+            rows = np.arange(K)
+            self._missed[:K] = False
+            v_lg, v_d = self._touch_nuisances(rows)
+            use = ~self._missed[:K]
+            if use.sum() >= 3:
+                # Gain and placement are relative: the sensors' heights and positions carry the
+                # absolute level, so the touches' nuisances are centred on zero.
+                self._lg[:K][use] -= self._lg[:K][use].mean()
+                self._dxy[:K][use] -= self._dxy[:K][use].mean(axis=0)
+                # EM update of the prior scales from the posterior moments.
+                self.gain_sd = float(
+                    np.clip(np.sqrt(np.mean(self._lg[:K][use] ** 2 + v_lg[use])), 0.01, 0.5)
+                )
+                msq = np.mean(self._dxy[:K][use] ** 2, axis=1) + v_d[use]
+                self.place_sd_mm = float(np.clip(np.sqrt(np.mean(msq)), 0.02, 3.0))
+            self._solve(np.arange(n), np.ones(n, bool))
+        self._dirty = False
+
+    def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
+        lw = self.shared_lw if self.shared_lw is not None else None
+        if lw is None:
+            w = np.exp(0.5 * (theta[:, pm.LW] + theta[:, pm.LWY]))
+        else:
+            w = np.full(n, float(np.exp(lw.mean())))
+        return pm.RIDGE_FRACTION * w
+
+    def _shared_width(self) -> None:
+        """The probe's footprint: median fitted widths over the well-determined sensors."""
+        f = self.fit
+        good = f.fitted & f.converged & (f.n_eff >= 2 * pm.N_PARAMS) & (f.theta[:, pm.AMP] > 0)
+        good &= np.isfinite(f.theta).all(axis=1)
+        if good.sum() >= 3:
+            self.shared_lw = np.median(f.theta[good][:, [pm.LW, pm.LWY]], axis=0)
+
+    def solve_all(self) -> None:
+        """Cold-start fit of every sensor, then the touch nuisances (the batch solve)."""
+        K = self._k
+        self._lg[:K] = 0.0
+        self._dxy[:K] = 0.0
+        self._missed[:K] = False
+        self._v_lg[:K] = 0.0
+        self._v_d[:K] = 0.0
+        self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, 0.5, None
+        self.fit.fitted[:] = False
+        self._sign = self._detect_sign()
+        self._spacing_used = self.spacing()
+        n = len(self.sensors)
+        if self._k:
+            self._solve(np.arange(n), np.zeros(n, bool))
+            if self._k >= 3:
+                self._polish(self.params_rounds)
+        self._dirty = False
+
+    @property
+    def params_rounds(self) -> int:
+        return POLISH_ROUNDS
+
+    def update(self, log: PointLog) -> Predictions:
+        """Add one touch and return the updated estimates of every sensor (fast, local).
+
+        ``update`` warm-starts the sensors near the new touch; ``result()`` then gives the
+        converged estimates (the batch solve).
+        """
+        with _quiet():
+            return self._update(log)
+
+    def _update(self, log: PointLog) -> Predictions:
+        """Add one touch and return the updated estimates of every sensor (fast, local).
+
+        The sensors near the new touch are re-fitted, warm-started; the touch's own gain and
+        placement are estimated from the current models. ``result()`` then polishes every
+        sensor and touch to the batch solution.
+        """
+        if not self._append(log):
+            return self._current()
+        self._dirty = True
+        k = self._k - 1
+        sign = self._detect_sign()
+        h = self.spacing()
+        f = self.fit
+        if (
+            sign != self._sign
+            or self._spacing_used is None
+            or abs(h - self._spacing_used) > 0.1 * self._spacing_used
+            or self._k >= self._next_full
+        ):
+            # Re-solve everything when the session has doubled (or its scale changed): the
+            # shared footprint and the touch nuisances settle, and the cost stays amortized.
+            self._next_full = max(2 * self._k, 8)
+            self.solve_all()
+            self._dirty = False
+            return self._current()
+        self._touch_nuisances(np.array([k]))
+        p = self._P[k] + self._dxy[k]
+        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        radius = np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
+        near = np.hypot(f.theta[:, pm.SX] - p[0], f.theta[:, pm.SY] - p[1]) < radius
+        # A new maximum far from the current estimate means the start must move: cold start.
+        # A new maximum of the map far from the current estimate: the peak may be elsewhere.
+        v_new = self._V[k] * self._sign
+        with np.errstate(invalid="ignore"):
+            before = np.nanmax(self._V[:k] * self._sign, axis=0) if k else np.full_like(v_new, -np.inf)
+        new_top = np.isfinite(v_new) & (v_new > before) & ~near
+        warm = np.flatnonzero(near & ~new_top)
+        cold = np.flatnonzero(new_top)
+        if warm.size:
+            self._solve(warm, np.ones(warm.size, bool), max_iter=UPDATE_ITERATIONS)
+        if cold.size:
+            # A fresh start needs the full iteration budget; it concerns few sensors.
+            self._solve(cold, np.zeros(cold.size, bool))
+        return self._current()
+
+    def _current(self) -> Predictions:
+        return _predictions(self)
+
+    # --- results -----------------------------------------------------------------------
+
+    def result(self) -> Predictions:
+        """The converged estimates: the batch solve of every log so far (cached).
+
+        ``update`` gives fast provisional estimates that depend on the order the logs came
+        in; ``result`` re-solves from the data alone, so it equals ``localize`` on the same
+        logs exactly, whatever the order and whatever the live updates did.
+        """
+        with _quiet():
+            if self._dirty:
+                self.solve_all()
+            return _predictions(self)
+
+
+def _finite_or_none(a, n: int, name: str) -> np.ndarray | None:
+    if a is None:
+        return None
+    a = np.asarray(a, dtype=float).reshape(-1)
+    if a.size != n:
+        raise InputError(f"{NAME}: {name} has {a.size} values for {n} sensors")
+    return np.where(np.isfinite(a), a, np.nan)
+
+
+def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Each sensor's slow floor over the session: low quantile of consecutive touches.
+
+    Touches are binned in arrival order (bins of ~K/8, at least 10); the 20th percentile of a
+    bin ignores the few touches near the sensor, and bins are joined by straight lines.
+    """
+    K, S = U.shape
+    m = max(10, K // 8)
+    if K < 2 * m:
+        q = np.percentile(np.where(valid, U, np.inf), 20, axis=0, method="lower")
+        return np.broadcast_to(np.where(np.isfinite(q), q, 0.0), (K, S))
+    edges = np.linspace(0, K, K // m + 1).astype(int)
+    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    # Invalid cells sort last (+inf), so a low quantile ignores them while they are few.
+    Un = np.where(valid, U, np.inf)
+    with np.errstate(all="ignore"):
+        q = np.stack(
+            [np.percentile(Un[a:b], 20, axis=0, method="lower") for a, b in zip(edges[:-1], edges[1:])]
+        )
+    # Bins without any valid value borrow the sensor's overall level.
+    overall = np.nanmedian(q, axis=0) if np.isfinite(q).any() else np.zeros(S)
+    q = np.where(np.isfinite(q), q, np.where(np.isfinite(overall), overall, 0.0)[None, :])
+    k = np.arange(K)
+    j = np.clip(np.searchsorted(centres, k) - 1, 0, len(centres) - 2)
+    t = np.clip((k - centres[j]) / (centres[j + 1] - centres[j]), 0.0, 1.0)
+    return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
+
+
+def _hull_distance(P: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Signed distance (mm, >0 outside) of each xy from the probes' convex hull; collinear?"""
+    pts = np.unique(P, axis=0)
+    if len(pts) < 3:
+        return np.full(len(xy), np.inf), True
+    c = pts - pts.mean(axis=0)
+    sv = np.linalg.svd(c, compute_uv=False)
+    # Probes on (nearly) one line cannot tell the two sides of that line apart.
+    if sv[1] / math.sqrt(len(pts)) < 0.25:
+        return np.full(len(xy), np.inf), True
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(pts)
+    eq = hull.equations  # n.x + c <= 0 inside, n unit length
+    return (xy @ eq[:, :2].T + eq[:, 2]).max(axis=1), False
+
+
+def _predictions(loc: Localizer) -> Predictions:
+    n = len(loc.sensors)
+    f = loc.fit
+    K = loc.n_logs
+    P = loc._P[:K]
+    params = {
+        k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None
+    }
+    params["n_logs"] = K
+    status = np.array([OK] * n, dtype=object)
+    snr = _snr(loc)
+    if K < 3 or len(np.unique(P, axis=0)) < 3:
+        status[:] = SPARSE
+        return _build(loc, status, np.zeros((n, 2)), np.zeros(n), snr, params)
+    th = f.theta
+    xy = th[:, :2].copy()
+    var = np.maximum(np.trace(f.cov_xy, axis1=1, axis2=2) / 2.0, 0.0)
+    h = loc.spacing()
+    w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
+    dist_out, collinear = _hull_distance(P, xy)
+    finite = np.isfinite(th).all(axis=1) & np.isfinite(var)
+    valid_counts = np.isfinite(loc._V[:K]).sum(axis=0)
+    snr_fit = th[:, pm.AMP] / np.maximum(f.noise, 1e-12)
+    weak_model = f.scale > 0.35 * np.maximum(th[:, pm.AMP], 1e-12)
+    # Per-axis sd: the fit's covariance (scaled by its residuals, so model mismatch counts)
+    # plus the touches' placement and gain scatter propagated through the fit.
+    sd = np.sqrt(var)
+    sd = np.hypot(sd, 0.002 * h)
+    moved = np.hypot(xy[:, 0] - f.start[:, 0], xy[:, 1] - f.start[:, 1])
+    sane = (
+        finite
+        & f.converged
+        & (f.n_eff >= 6.0)
+        & ~weak_model
+        & (moved <= np.maximum(2.0 * w, 2.0 * h))
+        & (w > 0.1 * h)
+        & (w < 20.0 * h)
+    )
+    margin = np.maximum(0.5 * h, 0.5 * w)
+    for i in range(n):
+        if not f.fitted[i] or valid_counts[i] < 3:
+            status[i] = SPARSE
+        elif loc.rest is not None and _rest_saturated(loc, i):
+            status[i] = SATURATED
+        elif K - f.n_clipped[i] < 3:
+            status[i] = SATURATED
+        elif collinear:
+            status[i] = COLLINEAR
+        elif not finite[i] or snr_fit[i] < loc.params["min_snr"] or th[i, pm.AMP] <= 0:
+            status[i] = DEAD
+        elif dist_out[i] > margin[i]:
+            status[i] = OUTSIDE
+        elif not sane[i]:
+            status[i] = FALLBACK
+        elif sd[i] * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"]:
+            status[i] = UNCERTAIN
+    # A clipped sensor that could not be located from its unclipped flanks: clipping is why.
+    status[(status != OK) & (status != SPARSE) & (f.n_clipped > 0)] = SATURATED
+    # A "peak" far weaker than the other sensors' is a wire ridge or crosstalk, not the
+    # sensor's own peak (not probed near it yet, or a damaged sensor).
+    raw_amp = th[:, pm.AMP] * f.amp
+    ok = status == OK
+    if ok.sum() >= 3:
+        weak = ok & (raw_amp < WEAK_FRACTION * np.median(raw_amp[ok]))
+        status[weak] = WEAK
+    ok = status == OK
+    if loc.groups is not None and loc.params["layout_prior"] and ok.sum() >= 2:
+        tx, rx = loc.groups
+        floor = float(loc.params["wire_scatter_mm"])
+        sdx, sdy = sd.copy(), sd.copy()
+        nx, vx = shrink_to_wires(xy[:, 0], sdx**2, xy[:, 1], tx, ok, floor)
+        ny, vy = shrink_to_wires(xy[:, 1], sdy**2, xy[:, 0], rx, ok, floor)
+        xy = np.column_stack([nx, ny])
+        sd = np.where(ok, np.sqrt((vx + vy) / 2.0), sd)
+    # Fallback: a robust floor-subtracted weighted centroid near the top of the map.
+    fb = status == FALLBACK
+    if fb.any():
+        xy[fb], sd[fb] = _centroid_fallback(loc, np.flatnonzero(fb), h)
+    sigma = sd * R95_PER_AXIS_SD / 2.0
+    return _build(loc, status, xy, sigma, snr, params)
+
+
+def _rest_saturated(loc: Localizer, i: int) -> bool:
+    r = loc.rest[i]
+    if not loc._raw_counts() or not math.isfinite(r):
+        return False
+    sd = loc.rest_sd[i] if loc.rest_sd is not None and math.isfinite(loc.rest_sd[i]) else 1.0
+    return r >= ADC_MAX - max(3 * sd, 1.0) or r <= max(3 * sd, 1.0)
+
+
+def _centroid_fallback(loc: Localizer, cols: np.ndarray, h: float):
+    K = loc.n_logs
+    P = loc._P[:K]
+    V = loc._V[:K][:, cols] * loc._sign
+    U = (V - loc.fit.floor[cols]) / loc.fit.amp[cols]
+    U = np.where(np.isfinite(U), U, 0.0)
+    kmax = np.argmax(U, axis=0)
+    d = np.hypot(P[:, 0:1] - P[kmax, 0][None], P[:, 1:2] - P[kmax, 1][None])
+    w = np.clip(U - 0.5, 0.0, None) * (d <= 2.0 * h)
+    w[kmax, np.arange(cols.size)] = np.maximum(w[kmax, np.arange(cols.size)], 1e-9)
+    ws = w.sum(axis=0)
+    xy = np.column_stack([(w * P[:, 0:1]).sum(0) / ws, (w * P[:, 1:2]).sum(0) / ws])
+    # A centroid on a grid is good to about a third of the spacing at best.
+    return xy, np.full(cols.size, h / 2.0)
+
+
+def _snr(loc: Localizer) -> np.ndarray:
+    """SNR_i = 20 log10((max_k mean S_ik - S_i0) / sigma_i0), the paper's equation."""
+    n = len(loc.sensors)
+    out = np.full(n, np.nan)
+    if loc.rest_sd is None or loc.n_logs == 0:
+        return out
+    with np.errstate(all="ignore"):
+        peak = np.nanmax(loc._V[: loc.n_logs] * loc._sign, axis=0)
+        out = 20.0 * np.log10(peak / loc.rest_sd)
+    return out
+
+
+def _build(loc, status, xy, sigma, snr, params) -> Predictions:
+    est = []
+    for i, name in enumerate(loc.sensors):
+        s = snr[i]
+        snr_i = float(s) if np.isfinite(s) else None
+        has_xy = status[i] in (OK, FALLBACK) and np.isfinite(xy[i]).all()
+        sig = float(sigma[i]) if has_xy and np.isfinite(sigma[i]) else None
+        est.append(
+            SensorEstimate(
+                sensor=name,
+                x_mm=float(xy[i, 0]) if has_xy else None,
+                y_mm=float(xy[i, 1]) if has_xy else None,
+                sigma_mm=sig,
+                snr_db=snr_i,
+                status=str(status[i]) if (has_xy or status[i] != OK) else FALLBACK,
+            )
+        )
+    return Predictions(NAME, est, params)
+
+
+def localize(logs: PointLogs, **params) -> Predictions:
+    """Batch solve: every log at once, cold start (equals the incremental result; see tests)."""
+    if not isinstance(logs, PointLogs):
+        raise InputError(f"{NAME}: expected PointLogs, got {type(logs).__name__}")
+    loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, **params)
+    for log in logs.logs():
+        loc._append(log)
+    with _quiet():
+        loc.solve_all()
+    return loc.result()

@@ -1,0 +1,199 @@
+"""PNG figures a user would rather look at than read: the method's steps and the result map.
+
+* ``plot_point_log_map``: one sensor's point log map as the raw grid, the interpolated map
+  and the thresholded peak with its prediction (the paper's three-step figure);
+* ``plot_predictions``: every prediction versus the truth over the patch outline, with the
+  probe locations and, where a method gives one, the 1-sigma error circle.
+
+Figures are drawn with matplotlib's object API on the Agg canvas, so nothing here touches
+the global pyplot state or needs a display; localizers never import this module.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.patches import Circle, Rectangle
+from scipy.spatial import QhullError
+
+from varskin.localize import paper
+from varskin.pointlogs import PointLogs
+from varskin.predictions import OK, Predictions
+
+
+def _save(fig: Figure, path: str | Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def plot_point_log_map(
+    logs: PointLogs,
+    sensor: str,
+    path: str | Path,
+    eta: float = paper.DEFAULT_ETA,
+    ppcm: float = paper.DEFAULT_PPCM,
+    area=None,
+    truth_xy: tuple[float, float] | None = None,
+) -> Path:
+    """The paper's three steps for one sensor: raw point log map, interpolated, thresholded."""
+    if sensor not in logs.sensors:
+        raise KeyError(sensor)
+    j = logs.sensors.index(sensor)
+    locations, maps = paper.point_log_map(logs)
+    column = maps[:, j]
+    area = tuple(area) if area is not None else paper.bounding_box(locations)
+    gx, gy = paper.pixel_grid(area, ppcm)
+    finite = np.isfinite(column)
+    try:
+        image = paper.interpolate(locations[finite], column[finite], gx, gy)
+    except (QhullError, ValueError):
+        # Too few or collinear valid probes for this sensor: show the raw map and no surface.
+        image = np.full((len(gy), len(gx)), np.nan)
+    x, y, status = paper.threshold_mean(image, gx, gy, eta)
+    extent = (gx[0], gx[-1], gy[0], gy[-1])
+    vmin, vmax = (
+        (float(np.nanmin(column)), float(np.nanmax(column))) if finite.any() else (0.0, 1.0)
+    )
+
+    fig = Figure(figsize=(9, 6), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
+    ax = axes[0]
+    sc = ax.scatter(
+        locations[:, 0],
+        locations[:, 1],
+        c=column,
+        marker="s",
+        s=90,
+        cmap="viridis",
+        vmin=vmin,
+        vmax=vmax,
+    )
+    ax.set_title(f"{sensor}: a) point log map ({len(locations)} probe locations)")
+    fig.colorbar(sc, ax=ax, label="counts above rest")
+
+    ax = axes[1]
+    im = ax.imshow(
+        image,
+        origin="lower",
+        extent=extent,
+        cmap="viridis",
+        vmin=vmin,
+        vmax=vmax,
+        aspect="equal",
+        interpolation="nearest",
+    )
+    ax.set_title(
+        f"b) piecewise cubic interpolation, {ppcm:g} pixels/cm (blank: outside the probes' hull)"
+    )
+    fig.colorbar(im, ax=ax, label="counts above rest")
+
+    ax = axes[2]
+    peak = np.nanmax(image) if np.isfinite(image).any() else np.nan
+    with np.errstate(invalid="ignore"):
+        kept = np.where(image > eta * peak, image, np.nan)
+    im = ax.imshow(
+        kept,
+        origin="lower",
+        extent=extent,
+        cmap="viridis",
+        vmin=vmin,
+        vmax=vmax,
+        aspect="equal",
+        interpolation="nearest",
+    )
+    title = f"c) pixels above {eta:g} x max, averaged"
+    if status == OK:
+        ax.plot([x], [y], "rx", ms=10, mew=2, label=f"prediction ({x:.2f}, {y:.2f})")
+    else:
+        title += f": {status}"
+    if truth_xy is not None:
+        ax.plot([truth_xy[0]], [truth_xy[1]], "w+", ms=12, mew=2, label="truth")
+    if status == OK or truth_xy is not None:
+        ax.legend(loc="upper right", fontsize=8)
+    ax.set_title(title)
+    fig.colorbar(im, ax=ax, label="counts above rest")
+    for ax in axes:
+        ax.set_aspect("equal")
+        ax.set_xlim(area[0], area[2])
+        ax.set_ylim(area[1], area[3])
+        ax.set_ylabel("y (mm)")
+    axes[-1].set_xlabel("x (mm)")
+    return _save(fig, path)
+
+
+def plot_predictions(
+    predictions: Predictions,
+    path: str | Path,
+    probes_xy: np.ndarray | None = None,
+    truth: dict[str, tuple[float, float]] | None = None,
+    outline_mm: tuple[float, float] | None = None,
+    title: str | None = None,
+) -> Path:
+    """All predictions (and truths, error circles, probes) over the patch outline.
+
+    ``outline_mm`` is the patch (length, width); without it the probes' bounding box is drawn.
+    """
+    fig = Figure(figsize=(12, 3.0), layout="constrained")
+    ax = fig.subplots()
+    if outline_mm is not None:
+        ax.add_patch(
+            Rectangle(
+                (0, 0),
+                outline_mm[0],
+                outline_mm[1],
+                fill=False,
+                lw=1.5,
+                ec="black",
+                label="patch outline",
+            )
+        )
+    elif probes_xy is not None and len(probes_xy):
+        lo, hi = np.min(probes_xy, axis=0), np.max(probes_xy, axis=0)
+        ax.add_patch(Rectangle(lo, *(hi - lo), fill=False, ls="--", ec="grey", label="probed area"))
+    if probes_xy is not None and len(probes_xy):
+        ax.plot(probes_xy[:, 0], probes_xy[:, 1], ".", color="0.6", ms=4, label="probe locations")
+    truth = truth or {}
+    first_circle = True
+    for e in predictions:
+        t = truth.get(e.sensor)
+        if t is not None:
+            ax.plot([t[0]], [t[1]], "k+", ms=8)
+            ax.annotate(e.sensor, t, textcoords="offset points", xytext=(2, 3), fontsize=6)
+        if e.status != OK:
+            continue
+        if t is not None:
+            ax.plot([t[0], e.x_mm], [t[1], e.y_mm], "-", color="tab:red", lw=0.8)
+        ax.plot([e.x_mm], [e.y_mm], "o", color="tab:blue", ms=4)
+        if e.sigma_mm is not None:
+            ax.add_patch(
+                Circle(
+                    (e.x_mm, e.y_mm),
+                    e.sigma_mm,
+                    fill=False,
+                    ec="tab:blue",
+                    lw=0.7,
+                    label="1-sigma" if first_circle else None,
+                )
+            )
+            first_circle = False
+    ax.plot([], [], "o", color="tab:blue", ms=4, label=f"prediction ({predictions.method})")
+    if truth:
+        ax.plot([], [], "k+", ms=8, label="truth")
+    failed = [e.sensor for e in predictions if e.status != OK]
+    ax.set_title(
+        title
+        or f"{predictions.method}: predicted sensor positions"
+        + (f" (not localized: {', '.join(failed)})" if failed else "")
+    )
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
+    ax.autoscale_view()
+    return _save(fig, path)
