@@ -78,19 +78,27 @@ def main() -> int:
         times.append(time.perf_counter() - t0)
     e = np.hypot(*(pred.xy() - s.truth).T)
     n_ok = sum(p.status == OK for p in pred)
-    print(f"  batch solve: median {statistics.median(times):.2f} s over {args.repeats} (target <= 2 s)")
-    print(f"  accuracy: {n_ok}/{logs.n_sensors} ok, median error {np.nanmedian(e):.2f} mm, "
-          f"max {np.nanmax(e):.2f} mm")
+    print(
+        f"  batch solve: median {statistics.median(times):.2f} s over {args.repeats} (target <= 2 s)"
+    )
+    print(
+        f"  accuracy: {n_ok}/{logs.n_sensors} ok, median error {np.nanmedian(e):.2f} mm, "
+        f"max {np.nanmax(e):.2f} mm"
+    )
     tracemalloc.start()
     peakfit.localize(logs)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    print(f"  peak heap during a solve: {peak / 1e6:.0f} MB (target <= 500 MB); "
-          f"process max RSS {rss_mb:.0f} MB")
+    print(
+        f"  peak heap during a solve: {peak / 1e6:.0f} MB (target <= 500 MB); "
+        f"process max RSS {rss_mb:.0f} MB"
+    )
     upd = live_update_ms(logs, 990, 10)
-    print(f"  live update after 990 logs: median {statistics.median(upd):.1f} ms, "
-          f"max {max(upd):.1f} ms over {len(upd)} (target <= 20 ms)")
+    print(
+        f"  live update after 990 logs: median {statistics.median(upd):.1f} ms, "
+        f"max {max(upd):.1f} ms over {len(upd)} (target <= 20 ms)"
+    )
 
     patch = builtin_patch("patch_b")
     s = simulate_session(patch, uniform_grid(patch, 20, 5), probe="robot", seed=0)
@@ -98,8 +106,10 @@ def main() -> int:
     upd = []
     for _ in range(args.repeats):
         upd += live_update_ms(logs, 80, 20)
-    print(f"Patch B: 30 sensors x 100 point logs: live update median {statistics.median(upd):.1f} ms, "
-          f"max {max(upd):.1f} ms over {len(upd)} (target <= 5 ms)")
+    print(
+        f"Patch B: 30 sensors x 100 point logs: live update median {statistics.median(upd):.1f} ms, "
+        f"max {max(upd):.1f} ms over {len(upd)} (target <= 5 ms)"
+    )
     t = []
     for _ in range(args.repeats):
         t0 = time.perf_counter()

@@ -214,6 +214,7 @@ class SimRig:
     # sd of the sensor noise. A real UR's is ~1 N with a ~3.5 N precision spec; the sim is
     # kinder so force-limit tests test the control loop rather than the noise.
     ft_noise_n: float = 0.1
+    ft_drift_n_per_s: float = 0.0  # sensor drift along base z (zeroFtSensor removes what accrued)
     surface_present: bool = True  # False: no skin anywhere (the NoContact case)
     patch_length_mm: float | None = 120.0  # outline: outside it there is no skin (None: infinite)
     patch_width_mm: float | None = 80.0
@@ -601,7 +602,7 @@ class _ControllerCore:
         """What the force sensor reads before zeroing: contact + offset + noise."""
         w = np.zeros(6)
         w[:3] = self._true_force * self.rig.patch_frame.normal  # the skin pushes the tool outwards
-        w[2] += self.rig.ft_offset_n
+        w[2] += self.rig.ft_offset_n + self.rig.ft_drift_n_per_s * self._sim_t
         w[:3] += self._rng.normal(0.0, self.rig.ft_noise_n, 3) if self.rig.ft_noise_n > 0 else 0.0
         return w
 

@@ -387,9 +387,16 @@ class URArm:
         self._in_force_mode = False
         running = self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False)
         # a real controller may leave the program paused rather than stopped: restart it too
-        playing = self._call("getRuntimeState", self._recv.getRuntimeState, check=False)
-        if not running or playing != RUNTIME_PLAYING:
-            self._call("reuploadScript", self._ctrl.reuploadScript)
+        runtime = self._call("getRuntimeState", self._recv.getRuntimeState, check=False)
+        if not running or runtime == RUNTIME_PAUSED:
+            try:
+                self._call("reuploadScript", self._ctrl.reuploadScript)
+            except RobotError as e:
+                # reuploadScript stops a running script, then asks the dashboard to "stop";
+                # if the program ended in between, the dashboard refuses and ur-rtde raises.
+                if "Failed to execute" not in str(e):
+                    raise
+                self._call("reuploadScript", self._ctrl.reuploadScript)
             deadline = time.monotonic() + self.call_timeout_s
             while not self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False):
                 if time.monotonic() > deadline:

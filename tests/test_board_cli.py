@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 import subprocess
 import sys
 
@@ -159,3 +160,4 @@ def test_board_sim_command_prints_a_device_path_that_records(tmp_path):
         proc.wait(10)
         proc.stdout.close()
         proc.stderr.close()
+    assert not os.path.lexists(path)  # SIGTERM cleans up like Ctrl-C

@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from varskin.errors import InputError
-from varskin.localize import DEFAULT_METHOD, localize
-from varskin.localize import paper, peakfit
+from varskin.localize import DEFAULT_METHOD, localize, paper, peakfit
 from varskin.predictions import OK
 from varskin.simulate import simulate_session, uniform_grid
 
@@ -76,7 +75,7 @@ def test_two_sigma_covers_90_to_98_percent_of_ok_sensors(patch_a, patch_b):
                 s = session(patch, probe, seed)
                 pred = localize(s.point_logs())
                 e = errors(pred, s.truth)
-                for est, err in zip(pred, e):
+                for est, err in zip(pred, e, strict=False):
                     if est.status == OK:
                         assert est.sigma_mm is not None and est.sigma_mm > 0
                         inside.append(err <= 2.0 * est.sigma_mm)

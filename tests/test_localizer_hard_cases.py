@@ -86,7 +86,7 @@ def test_sensor_in_the_corner_and_outside_the_probes_hull(patch_b, grid):
     assert err(pred, s.truth, 0) <= 3 * corner.sigma_mm
     # Probes only over x < 120 mm: the sensors beyond are never reported as located.
     part = check(peakfit.localize(logs.subset(logs.xy_mm[:, 0] < 120)), 30)
-    beyond = [p for p, t in zip(part, s.truth) if t[0] > 128]
+    beyond = [p for p, t in zip(part, s.truth, strict=False) if t[0] > 128]
     assert beyond and all(p.status != OK for p in beyond), [p.status for p in beyond]
     assert ok_errors(part, s.truth).max() <= TOL_MM
 

@@ -145,7 +145,20 @@ def run_bench(cfg: BenchConfig, progress: bool | None = None) -> list[Run]:
                 pred, ms = _timed(logs, method, params, cfg.repeats)
                 rms, mean, mx, n_ok = _score(pred, truth)
                 runs.append(
-                    Run(method, params, patch_name, probe, seed, n, rms, mean, mx, n_ok, logs.n_sensors, ms)
+                    Run(
+                        method,
+                        params,
+                        patch_name,
+                        probe,
+                        seed,
+                        n,
+                        rms,
+                        mean,
+                        mx,
+                        n_ok,
+                        logs.n_sensors,
+                        ms,
+                    )
                 )
                 bar.update(1, suffix=f"{patch_name} {probe} {method}")
     return runs
@@ -185,10 +198,20 @@ def table_rows(runs: list[Run], cfg: BenchConfig) -> list[dict]:
             ratio = a["time_ms"] / ra["time_ms"] if ra["time_ms"] > 0 else None
             ref_rms = ra["rms"]
         rows.append(
-            {"label": label, "method": method, "patch": patch, "probe": probe, "n_logs": n, **a,
-             "time_vs_paper": ratio, "rms_vs_paper": (a["rms"] / ref_rms) if a["rms"] and ref_rms else None}
+            {
+                "label": label,
+                "method": method,
+                "patch": patch,
+                "probe": probe,
+                "n_logs": n,
+                **a,
+                "time_vs_paper": ratio,
+                "rms_vs_paper": (a["rms"] / ref_rms) if a["rms"] and ref_rms else None,
+            }
         )
-    rows.sort(key=lambda r: (r["patch"], r["probe"], -r["n_logs"], r["method"] != "paper", r["label"]))
+    rows.sort(
+        key=lambda r: (r["patch"], r["probe"], -r["n_logs"], r["method"] != "paper", r["label"])
+    )
     return rows
 
 
@@ -197,13 +220,34 @@ def _fmt(v, d=2) -> str:
 
 
 def format_table(rows: list[dict], markdown: bool = False) -> str:
-    head = ["method", "patch", "probe", "logs", "RMS mm", "mean mm", "max mm", "time ms",
-            "time/paper", "RMS/paper", "ok"]
+    head = [
+        "method",
+        "patch",
+        "probe",
+        "logs",
+        "RMS mm",
+        "mean mm",
+        "max mm",
+        "time ms",
+        "time/paper",
+        "RMS/paper",
+        "ok",
+    ]
     lines = []
     body = [
-        [r["label"], r["patch"], r["probe"], str(r["n_logs"]), _fmt(r["rms"]), _fmt(r["mean"]),
-         _fmt(r["max"]), _fmt(r["time_ms"], 1), _fmt(r["time_vs_paper"], 3),
-         _fmt(r["rms_vs_paper"]), f"{r['n_ok']}/{r['n']}"]
+        [
+            r["label"],
+            r["patch"],
+            r["probe"],
+            str(r["n_logs"]),
+            _fmt(r["rms"]),
+            _fmt(r["mean"]),
+            _fmt(r["max"]),
+            _fmt(r["time_ms"], 1),
+            _fmt(r["time_vs_paper"], 3),
+            _fmt(r["rms_vs_paper"]),
+            f"{r['n_ok']}/{r['n']}",
+        ]
         for r in rows
     ]
     if markdown:
@@ -212,8 +256,8 @@ def format_table(rows: list[dict], markdown: bool = False) -> str:
         lines += ["| " + " | ".join(b) + " |" for b in body]
     else:
         widths = [max(len(h), *(len(b[i]) for b in body)) for i, h in enumerate(head)]
-        lines.append("  ".join(h.ljust(w) for h, w in zip(head, widths)))
-        lines += ["  ".join(c.ljust(w) for c, w in zip(b, widths)) for b in body]
+        lines.append("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=False)))
+        lines += ["  ".join(c.ljust(w) for c, w in zip(b, widths, strict=False)) for b in body]
     return "\n".join(lines)
 
 
@@ -252,8 +296,14 @@ def plot_pareto(runs: list[Run], path: Path) -> None:
         if e < best:
             best = e
             front.append((t, e, label))
-    ax.step([p[0] for p in front], [p[1] for p in front], where="post", color="k", lw=1,
-            label="Pareto front")
+    ax.step(
+        [p[0] for p in front],
+        [p[1] for p in front],
+        where="post",
+        color="k",
+        lw=1,
+        label="Pareto front",
+    )
     for t, e, label in front:
         ax.annotate(label, (t, e), fontsize=7, xytext=(4, 4), textcoords="offset points")
     ax.set_xscale("log")
@@ -282,13 +332,24 @@ def plot_error_vs_logs(runs: list[Run], cfg: BenchConfig, path: Path) -> None:
                 ns = sorted({r.n_logs for r in runs if r.patch == patch})
                 ys = []
                 for n in ns:
-                    rs = [r for r in runs if r.patch == patch and r.probe == probe and r.n_logs == n
-                          and r.label == label]
+                    rs = [
+                        r
+                        for r in runs
+                        if r.patch == patch
+                        and r.probe == probe
+                        and r.n_logs == n
+                        and r.label == label
+                    ]
                     ys.append(_agg(rs)["rms"] if rs else None)
                 if any(y is not None for y in ys):
-                    xs = [n for n, y in zip(ns, ys) if y is not None]
-                    ax.plot(xs, [y for y in ys if y is not None], style, color=color if label != ref_label else "C3" if probe == "finger" else "C2",
-                            label=f"{label} ({probe})")
+                    xs = [n for n, y in zip(ns, ys, strict=False) if y is not None]
+                    ax.plot(
+                        xs,
+                        [y for y in ys if y is not None],
+                        style,
+                        color=color if label != ref_label else "C3" if probe == "finger" else "C2",
+                        label=f"{label} ({probe})",
+                    )
         ax.set_xlabel("number of point logs (uniform grid)")
         ax.set_ylabel("RMS error, mm")
         ax.set_title(patch)
@@ -303,7 +364,9 @@ def plot_eta_ppcm(runs: list[Run], path: Path) -> None:
     """The paper's figure: its error over eta x ppcm (most point logs, finger probing)."""
     n = max(r.n_logs for r in runs)
     sel = [r for r in runs if r.method == "paper" and r.n_logs == n]
-    probes = "finger" if any(r.probe == "finger" for r in sel) else sel[0].probe if sel else "finger"
+    probes = (
+        "finger" if any(r.probe == "finger" for r in sel) else sel[0].probe if sel else "finger"
+    )
     sel = [r for r in sel if r.probe == probes]
     etas = sorted({r.params["eta"] for r in sel})
     ppcms = sorted({r.params["ppcm"] for r in sel})

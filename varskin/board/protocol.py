@@ -117,14 +117,18 @@ class AsciiFrameParser:
             else:
                 self.drops[NON_NUMERIC] += 1
             return None
-        fields = line.split(b",")
-        if len(fields) != N_CELLS:
+        if line.count(b",") != N_CELLS - 1:
             self.drops[FIELD_COUNT] += 1
             return None
-        if b",," in line or line[0] == 44 or line[-1] == 44:  # 44 == ord(",")
-            values = [int(f) if f else 0 for f in fields]
-        else:
-            values = list(map(int, fields))
+        # Empty fields mean 0. Filling them in keeps every value at its position; two passes
+        # because ",,," overlaps.
+        if b",," in line:
+            line = line.replace(b",,", b",0,").replace(b",,", b",0,")
+        if line[0] == 44:  # ord(",")
+            line = b"0" + line
+        if line[-1] == 44:
+            line += b"0"
+        values = list(map(int, line.split(b",")))
         if max(values) > ADC_MAX:
             self.drops[OUT_OF_RANGE] += 1
             return None

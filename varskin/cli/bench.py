@@ -21,7 +21,9 @@ def register(subparsers) -> None:
         action="store_true",
         help="a small run (Patch B, ppcm {4,16}, 3 etas, 20/60/100 logs, one seed): < 30 s",
     )
-    p.add_argument("--out", metavar="DIR", default="bench_results", help="output folder; default bench_results")
+    p.add_argument(
+        "--out", metavar="DIR", default="bench_results", help="output folder; default bench_results"
+    )
     p.add_argument(
         "--repeats",
         type=int,

@@ -61,24 +61,28 @@ def _per_touch(G: np.ndarray) -> np.ndarray:
 
 
 def lorentz(P: np.ndarray, theta: np.ndarray):
-    """Shape g (K,S), the x and y parts of the squared normalized distance, inverse widths^2."""
-    iwx = np.exp(-2.0 * theta[:, LW])
-    iwy = np.exp(-2.0 * theta[:, LWY])
+    """Shape g, the x and y parts of the squared normalized distance, inverse widths^2.
+
+    Shapes broadcast: theta (S,P) against probes (K,2) gives (K,S); theta (R,M,P) (sensors
+    gathered per touch) against probes (R,2) gives (R,M).
+    """
+    iwx = np.exp(-2.0 * theta[..., LW])
+    iwy = np.exp(-2.0 * theta[..., LWY])
     X, Y = _xy(P)
-    dx = X - theta[None, :, SX]
-    dy = Y - theta[None, :, SY]
-    rx = dx * dx * iwx[None, :]
-    ry = dy * dy * iwy[None, :]
+    dx = X - theta[..., SX]
+    dy = Y - theta[..., SY]
+    rx = dx * dx * iwx
+    ry = dy * dy * iwy
     return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy)
 
 
 def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
     """Compact fit window (K,S): 1 inside R, cosine taper to 0 at 1.5 R, exactly 0 beyond."""
-    w = np.exp(0.5 * (theta[:, LW] + theta[:, LWY]))
+    w = np.exp(0.5 * (theta[..., LW] + theta[..., LWY]))
     radius = np.maximum(s.window_widths * w, min_radius)
     X, Y = _xy(P)
-    d = np.hypot(X - theta[None, :, SX], Y - theta[None, :, SY])
-    u = np.clip((d / radius[None, :] - 1.0) * 2.0, 0.0, 1.0)
+    d = np.hypot(X - theta[..., SX], Y - theta[..., SY])
+    u = np.clip((d / radius - 1.0) * 2.0, 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
 
 
@@ -88,9 +92,9 @@ def ridges(P, theta, rho):
     ``rho`` (S,) is the ridge width; returns the two profiles and their signed distances.
     """
     X, Y = _xy(P)
-    dy = Y - theta[None, :, SY]
-    dx = X - theta[None, :, SX]
-    r2 = 1.0 / (rho * rho)[None, :]
+    dy = Y - theta[..., SY]
+    dx = X - theta[..., SX]
+    r2 = 1.0 / (rho * rho)
     return np.exp(-0.5 * dy * dy * r2), np.exp(-0.5 * dx * dx * r2), dx, dy, r2
 
 
@@ -99,11 +103,11 @@ def model(P, tau, theta, G=None, rho=None):
     g, _, _ = lorentz(P, theta)
     if G is not None:
         g = g * _per_touch(G)
-    m = floor(tau, theta) + theta[None, :, AMP] * g
+    m = floor(tau, theta) + theta[..., AMP] * g
     if rho is not None:
         ry, rx, _, _, _ = ridges(P, theta, rho)
         gg = 1.0 if G is None else _per_touch(G)
-        m = m + gg * (theta[None, :, CRX] * ry + theta[None, :, CTX] * rx)
+        m = m + gg * (theta[..., CRX] * ry + theta[..., CTX] * rx)
     return m
 
 
@@ -113,21 +117,21 @@ def floor(tau, theta):
     ``tau`` (K,S) is each touch's time in minutes relative to the sensor's own peak time, so
     the priors on slope and curvature mean the same for early and late sensors.
     """
-    return theta[None, :, B0] + (theta[None, :, B1] + theta[None, :, B2] * tau) * tau
+    return theta[..., B0] + (theta[..., B1] + theta[..., B2] * tau) * tau
 
 
 def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
     """Model (K,S) and its Jacobian (K,S,N_PARAMS)."""
     g, (rx, ry), (iwx, iwy) = lorentz(P, theta)
-    a = theta[None, :, AMP]
+    a = theta[..., AMP]
     k2 = 2.0 * a * g * g
     if G is not None:
         k2 = k2 * _per_touch(G)
         g = g * _per_touch(G)
     X, Y = _xy(P)
     J = np.empty(g.shape + (N_PARAMS,))
-    J[..., SX] = k2 * (X - theta[None, :, SX]) * iwx[None, :]
-    J[..., SY] = k2 * (Y - theta[None, :, SY]) * iwy[None, :]
+    J[..., SX] = k2 * (X - theta[..., SX]) * iwx
+    J[..., SY] = k2 * (Y - theta[..., SY]) * iwy
     J[..., LW] = k2 * rx
     J[..., LWY] = k2 * ry
     J[..., AMP] = g
@@ -140,13 +144,20 @@ def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
     if rho is not None:
         ry, rx, dx, dy, r2 = ridges(P, theta, rho)
         gg = 1.0 if G is None else _per_touch(G)
-        cy, cx = theta[None, :, CRX], theta[None, :, CTX]
+        cy, cx = theta[..., CRX], theta[..., CTX]
         J[..., CRX] = gg * ry
         J[..., CTX] = gg * rx
         J[..., SY] += gg * cy * ry * dy * r2
         J[..., SX] += gg * cx * rx * dx * r2
         m = m + gg * (cy * ry + cx * rx)
     return m, J
+
+
+def normal_equations(w: np.ndarray, J: np.ndarray, r: np.ndarray):
+    """J^T W J (S,P,P) and J^T W r (S,P) for every sensor, as batched matrix products."""
+    Jt = np.ascontiguousarray(J.transpose(1, 2, 0))  # (S, P, M)
+    Jw = Jt * w.T[:, None, :]
+    return Jw @ Jt.transpose(0, 2, 1), (Jw * r.T[:, None, :]).sum(axis=2)
 
 
 @dataclass
@@ -184,7 +195,9 @@ def fit(
     spacing = min_radius / s.window_spacings
     theta = theta0.astype(float).copy()
     theta[:, [LW, LWY]] = np.clip(
-        theta[:, [LW, LWY]], np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+        theta[:, [LW, LWY]],
+        np.log(MIN_WIDTH_SPACINGS * spacing),
+        np.log(MAX_WIDTH_SPACINGS * spacing),
     )
     lw_prior = 0.5 * (theta0[:, LW] + theta0[:, LWY])
     K = U.shape[0]
@@ -192,8 +205,11 @@ def fit(
     # Only the touches near each sensor can carry weight (the window is compact): gather
     # them into (M, S) arrays so a full board costs what its neighbourhoods cost.
     w0 = np.exp(0.5 * (theta[:, LW] + theta[:, LWY]))
-    reach = 2.5 * np.maximum(s.window_widths * w0 * 1.6, min_radius)
-    dist = np.hypot(P[:, 0:1] - theta[None, :, SX], P[:, 1:2] - theta[None, :, SY])
+    # Window (1.5 R) of a footprint up to 1.4x wider than the start, plus room to move.
+    reach = 1.5 * np.maximum(s.window_widths * w0 * 1.4, min_radius) + 0.5 * np.maximum(
+        s.window_widths * w0, min_radius
+    )
+    dist = np.hypot(P[:, 0:1] - theta[..., SX], P[:, 1:2] - theta[..., SY])
     inside = (dist <= reach[None, :]) & valid
     M = max(int(inside.sum(axis=0).max()), 1)
     order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
@@ -224,7 +240,10 @@ def fit(
         mean_w[[LW, LWY]] = 0.5
         aspect = np.zeros(N_PARAMS)
         aspect[LW], aspect[LWY] = 1.0, -1.0
-        Q += (np.outer(mean_w, mean_w) / s.width_prior_sd**2 + np.outer(aspect, aspect) / s.aspect_prior_sd**2)[None]
+        Q += (
+            np.outer(mean_w, mean_w) / s.width_prior_sd**2
+            + np.outer(aspect, aspect) / s.aspect_prior_sd**2
+        )[None]
         mu[:, LW] = lw_prior
         mu[:, LWY] = lw_prior
     else:
@@ -269,8 +288,7 @@ def fit(
         sc = np.where(it < 8, sc, scale[idx])
         scale[idx] = sc
         _, wts = weights_for(th, res, sc, idx)
-        H = np.einsum("ks,ksp,ksq->spq", wts, J, J)
-        g = np.einsum("ks,ksp,ks->sp", wts, J, res)
+        H, g = normal_equations(wts, J, res)
         # Weak priors keep the floor slope and the width sane when few points carry the fit.
         sc2 = (sc * sc)[:, None, None]
         g -= np.einsum("spq,sq->sp", Q[idx], th - mu[idx]) * sc2[:, :, 0]
@@ -284,18 +302,26 @@ def fit(
             if not todo.any():
                 break
             Hd = H[todo] + np.eye(N_PARAMS)[None] * (
-                lam_i[todo, None, None] * (np.diagonal(H[todo], axis1=1, axis2=2)[:, None, :] + 1e-9)
+                lam_i[todo, None, None]
+                * (np.diagonal(H[todo], axis1=1, axis2=2)[:, None, :] + 1e-9)
             )
             try:
                 d = np.linalg.solve(Hd, g[todo][..., None])[..., 0]
             except np.linalg.LinAlgError:
-                d = np.stack([np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(Hd, g[todo])])
+                d = np.stack(
+                    [
+                        np.linalg.lstsq(h, gg, rcond=None)[0]
+                        for h, gg in zip(Hd, g[todo], strict=False)
+                    ]
+                )
             d[:, [LW, LWY]] = np.clip(d[:, [LW, LWY]], -0.5, 0.5)
             d[:, [SX, SY]] = np.clip(d[:, [SX, SY]], -0.5 * min_radius, 0.5 * min_radius)
             cand = th[todo] + d
             cand[:, AMP] = np.maximum(cand[:, AMP], 1e-6)
             cand[:, [LW, LWY]] = np.clip(
-                cand[:, [LW, LWY]], np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+                cand[:, [LW, LWY]],
+                np.log(MIN_WIDTH_SPACINGS * spacing),
+                np.log(MAX_WIDTH_SPACINGS * spacing),
             )
             ok = cost(cand, sc[todo], idx[todo], win[:, todo]) <= c0[todo] * (1 + 1e-12)
             ok &= np.isfinite(cand).all(axis=1)
@@ -308,7 +334,9 @@ def fit(
         theta[idx] = th + step
         moved = np.hypot(step[:, SX], step[:, SY])
         last_step[idx] = np.where(accepted, moved, last_step[idx])
-        done = (accepted & (moved < s.step_tol_mm) & (np.abs(step[:, [LW, LWY]]).max(axis=1) < 1e-4)) | ~accepted
+        done = (
+            accepted & (moved < s.step_tol_mm) & (np.abs(step[:, [LW, LWY]]).max(axis=1) < 1e-4)
+        ) | ~accepted
         done &= it >= 2
         converged[idx[done & accepted]] = True
         converged[idx[done & ~accepted]] = True  # no better point nearby: a local minimum
@@ -318,7 +346,7 @@ def fit(
     res = Uz - m
     win, wts = weights_for(theta, res, scale, np.arange(S))
     wsum = np.maximum(win.sum(axis=0), 1e-12)
-    H = np.einsum("ks,ksp,ksq->spq", wts, J, J)
+    H, _ = normal_equations(wts, J, res)
     H = H + Q * (scale * scale)[:, None, None]
     # Residual variance of the fit (robustly weighted), with the dof the window leaves.
     n_eff = wts.sum(axis=0)
@@ -334,7 +362,7 @@ def fit(
         # Where each touch landed and how hard it pressed are only known to their posterior
         # variance; propagate that through the fit (first order: d theta / d touch).
         v_lg, v_d = touch_var[0][order].T, touch_var[1][order].T  # (S, M)
-        Mi = np.einsum("spq,ksq->spk", Hinv[:, :2, :], wts[..., None] * J)  # (S, 2, M)
+        Mi = Hinv[:, :2, :] @ (J * wts[..., None]).transpose(1, 2, 0)  # (S, 2, M)
         bump = (m - floor(tau, theta)).T  # (S, M)
         jx, jy = J[..., SX].T, J[..., SY].T
         for ax in (0, 1):

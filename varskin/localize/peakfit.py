@@ -78,7 +78,12 @@ def check_params(params: dict) -> dict:
     out = {**DEFAULTS, **params}
     for key in ("wire_scatter_mm", "min_snr", "max_sigma_mm", "window_widths", "cauchy_c"):
         v = out[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0 or not math.isfinite(v):
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float))
+            or not v > 0
+            or not math.isfinite(v)
+        ):
             raise InputError(f"{NAME}: {key} must be a positive number, got {v!r}")
     sp = out["spacing_mm"]
     if sp is not None and (isinstance(sp, bool) or not isinstance(sp, (int, float)) or not sp > 0):
@@ -90,7 +95,9 @@ def check_params(params: dict) -> dict:
     return out
 
 
-def _wire_groups(sensors: tuple[str, ...], patch: Patch | None, wires) -> tuple[np.ndarray, np.ndarray] | None:
+def _wire_groups(
+    sensors: tuple[str, ...], patch: Patch | None, wires
+) -> tuple[np.ndarray, np.ndarray] | None:
     table: dict[str, tuple[int, int]] = {}
     if patch is not None:
         table = {s.name: (s.tx, s.rx) for s in patch.sensors}
@@ -140,8 +147,10 @@ class Localizer:
             raise InputError(f"{NAME}: no sensors")
         self.rest = _finite_or_none(rest, n, "rest")
         self.rest_sd = _finite_or_none(rest_sd, n, "rest_sd")
+        self._raw: bool | None = None
         self.settings = pm.FitSettings(
-            window_widths=float(self.params["window_widths"]), cauchy_c=float(self.params["cauchy_c"])
+            window_widths=float(self.params["window_widths"]),
+            cauchy_c=float(self.params["cauchy_c"]),
         )
         self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
         cap = 64
@@ -287,10 +296,12 @@ class Localizer:
 
     def _raw_counts(self) -> bool:
         """Do rest values look like Muca ADC counts (so ADC clipping can be judged)?"""
-        if self.rest is None or not np.isfinite(self.rest).any():
-            return False
-        med = float(np.nanmedian(self.rest))
-        return 100.0 <= med <= ADC_MAX
+        if self._raw is None:
+            if self.rest is None or not np.isfinite(self.rest).any():
+                self._raw = False
+            else:
+                self._raw = bool(100.0 <= float(np.nanmedian(self.rest)) <= ADC_MAX)
+        return self._raw
 
     # --- solving -----------------------------------------------------------------------
 
@@ -425,25 +436,46 @@ class Localizer:
         pin the touch down. Returns the posterior variances (log gain, mean axis mm^2).
         """
         f = self.fit
-        cols = np.flatnonzero(f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0))
+        cols = np.flatnonzero(
+            f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0)
+        )
         R = rows.size
         if cols.size == 0 or R == 0:
             return np.zeros(R), np.zeros(R)
-        th = f.theta[cols]
         P0 = self._P[rows]
-        tau = self._tau()[rows][:, None] - f.tc[cols][None, :]
-        V = self._V[rows][:, cols] * self._sign
-        U = (V - f.floor[cols]) / f.amp[cols]
-        valid = np.isfinite(U)
-        if self.rest is not None:
-            valid &= ~self._clipped(cols)[rows]
-        U = np.where(valid, U, 0.0)
         min_radius = self.settings.window_spacings * self.spacing()
-        scale = np.maximum(f.scale[cols], 1e-9)
+        # Only the sensors whose fit window can contain a touch say anything about it:
+        # gather them per touch, (R, M) with M the most any touch has.
+        thc = f.theta[cols]
+        wc = np.exp(0.5 * (thc[:, pm.LW] + thc[:, pm.LWY]))
+        reach = (
+            1.5 * np.maximum(self.settings.window_widths * wc, min_radius) + 4.0 * self.place_sd_mm
+        )
+        dist = np.hypot(P0[:, 0:1] - thc[None, :, pm.SX], P0[:, 1:2] - thc[None, :, pm.SY])
+        inside = dist <= reach[None, :]
+        M = max(int(inside.sum(axis=1).max()), 1)
+        order = np.argsort(~inside, axis=1, kind="stable")[:, :M]  # (R, M) into cols
+        near = np.take_along_axis(inside, order, axis=1)
+        sel = cols[order]  # (R, M) sensor indices
+        th = f.theta[sel]  # (R, M, P)
+        tau = self._tau()[rows][:, None] - f.tc[sel]
+        V = np.take_along_axis(self._V[rows], sel, axis=1) * self._sign
+        U = (V - f.floor[sel]) / f.amp[sel]
+        valid = np.isfinite(U) & near
+        if self.rest is not None and self._raw_counts():
+            rest = self.rest[sel]
+            sd = self.rest_sd[sel] if self.rest_sd is not None else np.ones_like(rest)
+            margin = np.maximum(3.0 * sd, 1.0)
+            raw = rest + V * self._sign
+            valid &= ~((raw >= ADC_MAX - margin) | (raw <= margin))
+        U = np.where(valid, U, 0.0)
+        scale = np.maximum(f.scale[sel], 1e-9)
         lg = self._lg[rows].copy()
         d = self._dxy[rows].copy()
-        rho = self._ridge_width(cols.size, th)
-        prior = np.array([1.0 / self.gain_sd**2, 1.0 / self.place_sd_mm**2, 1.0 / self.place_sd_mm**2])
+        rho = self._ridge_width(cols.size, thc)[order]
+        prior = np.array(
+            [1.0 / self.gain_sd**2, 1.0 / self.place_sd_mm**2, 1.0 / self.place_sd_mm**2]
+        )
         H = np.zeros((R, 3, 3))
         for _ in range(3):
             Pe = P0 + d
@@ -451,13 +483,14 @@ class Localizer:
             m, J = pm.jacobian(Pe, tau, th, G, rho)
             res = U - m
             win = pm.window(Pe, th, min_radius, self.settings) * valid
-            z = res / (self.settings.cauchy_c * scale[None, :])
-            w = win / (1.0 + z * z) / (scale * scale)[None, :]
+            z = res / (self.settings.cauchy_c * scale)
+            w = win / (1.0 + z * z) / (scale * scale)
             bump = m - pm.floor(tau, th)
-            Jt = np.stack([bump, -J[..., pm.SX], -J[..., pm.SY]], axis=-1)
-            H = np.einsum("rs,rsp,rsq->rpq", w, Jt, Jt) + np.diag(prior)[None]
+            Jt = np.stack([bump, -J[..., pm.SX], -J[..., pm.SY]], axis=-1)  # (R, M, 3)
+            Jw = Jt * w[..., None]
+            H = Jw.transpose(0, 2, 1) @ Jt + np.diag(prior)[None]
             cur = np.column_stack([lg, d])
-            g = np.einsum("rs,rsp,rs->rp", w, Jt, res) - prior[None, :] * cur
+            g = (Jw * res[..., None]).sum(axis=1) - prior[None, :] * cur
             step = np.linalg.solve(H, g[..., None])[..., 0]
             lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), -3.0, 1.0)
             lim = 4.0 * self.place_sd_mm + 0.1
@@ -472,11 +505,11 @@ class Localizer:
         # touch's response relative to the models' prediction, over the windows it is in.
         Pe = P0 + d
         m, _ = pm.jacobian(Pe, tau, th, None, rho)
-        bump = m - pm.floor(tau, th)
-        resp = U - pm.floor(tau, th)
-        win = pm.window(Pe, th, min_radius, self.settings) * valid / (scale * scale)[None, :]
+        fl = pm.floor(tau, th)
+        bump = m - fl
+        win = pm.window(Pe, th, min_radius, self.settings) * valid / (scale * scale)
         expected = (win * bump * bump).sum(axis=1)
-        ratio = (win * bump * resp).sum(axis=1) / np.maximum(expected, 1e-300)
+        ratio = (win * bump * (U - fl)).sum(axis=1) / np.maximum(expected, 1e-300)
         # The models must predict a clear response (>= ~10 sigma summed) for a verdict.
         self._missed[rows] = (expected > 100.0) & (ratio < 0.3)
         return cov[:, 0, 0], 0.5 * (cov[:, 1, 1] + cov[:, 2, 2])
@@ -537,18 +570,13 @@ class Localizer:
         if self._k:
             self._solve(np.arange(n), np.zeros(n, bool))
             if self._k >= 3:
-                self._polish(self.params_rounds)
+                self._polish(POLISH_ROUNDS)
         self._dirty = False
 
-    @property
-    def params_rounds(self) -> int:
-        return POLISH_ROUNDS
-
     def update(self, log: PointLog) -> Predictions:
-        """Add one touch and return the updated estimates of every sensor (fast, local).
+        """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
 
-        ``update`` warm-starts the sensors near the new touch; ``result()`` then gives the
-        converged estimates (the batch solve).
+        ``result()`` gives the converged estimates (the batch solve).
         """
         with _quiet():
             return self._update(log)
@@ -582,14 +610,20 @@ class Localizer:
         self._touch_nuisances(np.array([k]))
         p = self._P[k] + self._dxy[k]
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
-        radius = np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
+        radius = (
+            np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
+        )
         near = np.hypot(f.theta[:, pm.SX] - p[0], f.theta[:, pm.SY] - p[1]) < radius
         # A new maximum far from the current estimate means the start must move: cold start.
         # A new maximum of the map far from the current estimate: the peak may be elsewhere.
         v_new = self._V[k] * self._sign
         with np.errstate(invalid="ignore"):
-            before = np.nanmax(self._V[:k] * self._sign, axis=0) if k else np.full_like(v_new, -np.inf)
-        new_top = np.isfinite(v_new) & (v_new > before) & ~near
+            before = (
+                np.nanmax(self._V[:k] * self._sign, axis=0) if k else np.full_like(v_new, -np.inf)
+            )
+        u_new = (v_new - f.floor) / f.amp
+        above_fit = u_new > f.theta[:, pm.B0] + f.theta[:, pm.AMP]  # the model cannot explain it
+        new_top = np.isfinite(v_new) & (v_new > before) & above_fit & ~near
         warm = np.flatnonzero(near & ~new_top)
         cold = np.flatnonzero(new_top)
         if warm.size:
@@ -634,7 +668,7 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """
     K, S = U.shape
     m = max(10, K // 8)
-    if K < 2 * m:
+    if 2 * m > K:
         q = np.percentile(np.where(valid, U, np.inf), 20, axis=0, method="lower")
         return np.broadcast_to(np.where(np.isfinite(q), q, 0.0), (K, S))
     edges = np.linspace(0, K, K // m + 1).astype(int)
@@ -643,7 +677,10 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     Un = np.where(valid, U, np.inf)
     with np.errstate(all="ignore"):
         q = np.stack(
-            [np.percentile(Un[a:b], 20, axis=0, method="lower") for a, b in zip(edges[:-1], edges[1:])]
+            [
+                np.percentile(Un[a:b], 20, axis=0, method="lower")
+                for a, b in zip(edges[:-1], edges[1:], strict=False)
+            ]
         )
     # Bins without any valid value borrow the sensor's overall level.
     overall = np.nanmedian(q, axis=0) if np.isfinite(q).any() else np.zeros(S)
@@ -676,9 +713,7 @@ def _predictions(loc: Localizer) -> Predictions:
     f = loc.fit
     K = loc.n_logs
     P = loc._P[:K]
-    params = {
-        k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None
-    }
+    params = {k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None}
     params["n_logs"] = K
     status = np.array([OK] * n, dtype=object)
     snr = _snr(loc)
@@ -713,9 +748,7 @@ def _predictions(loc: Localizer) -> Predictions:
     for i in range(n):
         if not f.fitted[i] or valid_counts[i] < 3:
             status[i] = SPARSE
-        elif loc.rest is not None and _rest_saturated(loc, i):
-            status[i] = SATURATED
-        elif K - f.n_clipped[i] < 3:
+        elif loc.rest is not None and _rest_saturated(loc, i) or K - f.n_clipped[i] < 3:
             status[i] = SATURATED
         elif collinear:
             status[i] = COLLINEAR
@@ -803,7 +836,7 @@ def _build(loc, status, xy, sigma, snr, params) -> Predictions:
                 y_mm=float(xy[i, 1]) if has_xy else None,
                 sigma_mm=sig,
                 snr_db=snr_i,
-                status=str(status[i]) if (has_xy or status[i] != OK) else FALLBACK,
+                status=str(status[i]) if (has_xy or status[i] != OK) else DEAD,
             )
         )
     return Predictions(NAME, est, params)
