@@ -13,7 +13,7 @@ from robot.sim_controller import POLYSCOPE_VERSION, SimRig, SimulatedController
 
 dashboard_client = pytest.importorskip("dashboard_client")
 
-UNLOCK_DELAY_S = 0.3
+UNLOCK_DELAY_S = 1.0
 
 
 @pytest.fixture(scope="module")

@@ -41,11 +41,19 @@ def fresh(clients):
     sim, ctrl, recv = clients
     if not ctrl.isProgramRunning():
         assert ctrl.reuploadScript()
-        deadline = time.monotonic() + 3
-        while not ctrl.isProgramRunning() and time.monotonic() < deadline:
-            time.sleep(0.01)
+        assert wait_until(ctrl.isProgramRunning)
     sim.clear_logs()
     return sim, ctrl, recv
+
+
+def wait_until(predicate, timeout_s: float = 3.0) -> bool:
+    """Poll ``predicate`` until true or ``timeout_s`` passed (state arrives at 125 Hz)."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
 
 
 def above(rig: SimRig, x_mm: float, y_mm: float, h_mm: float, pose) -> list[float]:
@@ -87,11 +95,9 @@ def test_movel_runs_at_the_commanded_speed_and_arrives(fresh, rig):
 def test_zero_ft_sensor_removes_the_offset(fresh, rig):
     sim, ctrl, recv = fresh
     assert ctrl.moveL(above(rig, 50, 12, 20.0, recv.getActualTCPPose()), 0.25, 1.0)
-    time.sleep(0.05)
     assert recv.getActualTCPForce()[2] == pytest.approx(rig.ft_offset_n, abs=5 * rig.ft_noise_n)
     assert ctrl.zeroFtSensor() is True
-    time.sleep(0.05)
-    assert abs(recv.getActualTCPForce()[2]) < 5 * rig.ft_noise_n
+    assert wait_until(lambda: abs(recv.getActualTCPForce()[2]) < 5 * rig.ft_noise_n)
 
 
 def test_skin_contact_force_is_stiffness_times_depth_inside_the_outline_only(fresh, rig):
@@ -100,10 +106,9 @@ def test_skin_contact_force_is_stiffness_times_depth_inside_the_outline_only(fre
     assert ctrl.moveL(above(rig, 50, 12, 2.0, pose), 0.1, 1.0)
     assert ctrl.zeroFtSensor()
     assert ctrl.moveL(above(rig, 50, 12, -1.0, pose), 0.005, 0.5)  # 1 mm into the silicone
-    time.sleep(0.05)
     f_true = sim.force_log()[-1, 1]
     assert f_true == pytest.approx(rig.stiffness_n_per_mm * 1.0, rel=0.02)
-    assert recv.getActualTCPForce()[2] == pytest.approx(f_true, abs=5 * rig.ft_noise_n)
+    assert wait_until(lambda: abs(recv.getActualTCPForce()[2] - f_true) < 5 * rig.ft_noise_n)
     x, y, f = sim.probe_state.get()
     assert x == pytest.approx(50.0, abs=0.01) and y == pytest.approx(12.0, abs=0.01)
     assert f == pytest.approx(f_true)
@@ -126,7 +131,6 @@ def test_contact_detection_stops_an_async_move_at_the_skin(fresh, rig):
     while not ctrl.readContactDetection():
         assert time.monotonic() < deadline, "no contact detected"
     assert ctrl.stopContactDetection() is True
-    time.sleep(0.05)
     depth_mm = -rig.patch_frame.to_patch(sim.tcp_pose[:3])[2]
     assert 0.0 < depth_mm < 0.5  # stopped within half a millimetre of the surface
     assert ctrl.moveL(above(rig, 60, 12, 20.0, pose), 0.1, 1.0)
@@ -135,14 +139,10 @@ def test_contact_detection_stops_an_async_move_at_the_skin(fresh, rig):
 def test_stopped_script_makes_commands_return_false(fresh, rig):
     sim, ctrl, recv = fresh
     sim.stop_script()
-    time.sleep(0.05)
-    assert not ctrl.isProgramRunning()
+    assert wait_until(lambda: not ctrl.isProgramRunning())
     assert ctrl.moveL(above(rig, 50, 12, 25.0, recv.getActualTCPPose()), 0.1, 1.0) is False
     assert ctrl.reuploadScript()
-    deadline = time.monotonic() + 3.0
-    while not ctrl.isProgramRunning():
-        assert time.monotonic() < deadline, "script did not restart"
-        time.sleep(0.01)
+    assert wait_until(ctrl.isProgramRunning), "script did not restart"
     assert ctrl.moveL(above(rig, 50, 12, 25.0, recv.getActualTCPPose()), 0.1, 1.0) is True
 
 
@@ -156,8 +156,7 @@ def test_pushing_into_the_rigid_base_protective_stops_the_controller(rig):
             assert ctrl.moveL(above(rig, 50, 12, 1.0, pose), 0.25, 1.0)
             # 10 mm down: through the 3 mm of silicone into the rigid base
             assert ctrl.moveL(above(rig, 50, 12, -10.0, pose), 0.01, 0.5) is False
-            time.sleep(0.05)
-            assert recv.isProtectiveStopped() and recv.getSafetyMode() == 3
+            assert wait_until(recv.isProtectiveStopped) and recv.getSafetyMode() == 3
             assert not ctrl.isProgramRunning()
             # it stopped at the threshold (one control cycle of overshoot at most)
             # rigid stiffness (N/mm) x the millimetres moved in one 4 ms cycle at 10 mm/s
@@ -176,8 +175,7 @@ def test_parallel_controllers_get_their_own_loopback_addresses(rig):
         rb = rtde_receive.RTDEReceiveInterface(b.host, 125.0)
         try:
             a.inject_protective_stop()
-            time.sleep(0.05)
-            assert ra.isProtectiveStopped() and not rb.isProtectiveStopped()
+            assert wait_until(ra.isProtectiveStopped) and not rb.isProtectiveStopped()
         finally:
             ra.disconnect()
             rb.disconnect()

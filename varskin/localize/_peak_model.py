@@ -1,14 +1,16 @@
 """Batched robust fit of a peak to many sensors' point log maps at once.
 
 Why a private module: the fit is the numerical core of the ``peakfit`` localizer and is
-shared by its batch and incremental paths, so both converge to the same fixed point.
+shared by its batch solve and its live updates.
 
 The model of one sensor's map, in that sensor's normalized units, is
 
-    m(p, t) = b0 + b1 tau + b2 tau^2 + a / (1 + (x - sx)^2 / wx^2 + (y - sy)^2 / wy^2)
+    m(p, t) = b0 + b1 tau + b2 tau^2
+              + G (a / (1 + (x - sx)^2 / wx^2 + (y - sy)^2 / wy^2) + c_rx R(y - sy) + c_tx R(x - sx))
 
 a Lorentzian bump at the sensor position ``s`` of height ``a`` and half widths ``wx``, ``wy``
-along the wires (a crossing's footprint is not round) over a
+along the wires (a crossing's footprint is not round), narrow ridges ``R`` where the probe
+couples along the sensor's own RX and TX wires, ``G`` the touch's pressing gain, over a
 floor that may drift smoothly in session time (``tau`` in minutes from the sensor's peak
 time, so weak priors on slope and curvature keep drift from mimicking a shift of the peak
 when the probe scans in order and time runs along x). Only the neighbourhood
