@@ -17,8 +17,9 @@ def test_quick_bench_writes_table_and_figures(tmp_path, capsys):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     md = (out / "results.md").read_text()
     assert "| method |" in md and "RMS/paper" in md
-    rows = [line for line in md.splitlines() if line.startswith("| peakfit")]
+    rows = [line for line in md.splitlines() if line.startswith("| peakfit |")]
     assert len(rows) == 2 * 3  # two probes x three numbers of point logs
+    assert sum(line.startswith("| peakfit patch=wires |") for line in md.splitlines()) == 6
     # The reference row of the paper has ratio 1 to itself.
     ref = [line for line in md.splitlines() if line.startswith("| paper eta=0.65,ppcm=16")]
     assert ref and all("| 1.000 | 1.00 |" in line for line in ref)
