@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from varskin.localize import peakfit  # noqa: E402
+from varskin.localization import peakfit  # noqa: E402
 from varskin.patch import builtin_patch, patch_from_dict  # noqa: E402
 from varskin.predictions import OK  # noqa: E402
 from varskin.simulate import simulate_session, uniform_grid  # noqa: E402

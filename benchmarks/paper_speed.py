@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from varskin.evaluate import rms_n_minus_1
-from varskin.localize import localize
+from varskin.localization import localize
 from varskin.patch import builtin_patch
 from varskin.simulate import simulate_session, uniform_grid
 

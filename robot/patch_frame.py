@@ -20,7 +20,11 @@ class PatchFrame:
 
     def __post_init__(self) -> None:
         r = np.asarray(self.rotation, float)
-        if r.shape != (3, 3) or not np.allclose(r @ r.T, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
+        if (
+            r.shape != (3, 3)
+            or not np.allclose(r @ r.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(r) < 0
+        ):
             raise ValueError("PatchFrame.rotation must be a proper 3x3 rotation matrix")
         object.__setattr__(self, "rotation", r)
         object.__setattr__(self, "origin_m", np.asarray(self.origin_m, float).reshape(3))
@@ -29,7 +33,9 @@ class PatchFrame:
     def from_yaw(cls, origin_m, yaw_rad: float = 0.0) -> PatchFrame:
         """A patch lying flat (z up) at ``origin_m``, its x axis turned by ``yaw_rad``."""
         c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-        return cls(np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.asarray(origin_m, float))
+        return cls(
+            np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]), np.asarray(origin_m, float)
+        )
 
     @property
     def normal(self) -> np.ndarray:

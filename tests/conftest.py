@@ -8,7 +8,9 @@ from varskin.patch import builtin_patch
 
 
 def pytest_addoption(parser):
-    parser.addoption("--hardware", action="store_true", help="run tests that need a real UR arm or Muca board")
+    parser.addoption(
+        "--hardware", action="store_true", help="run tests that need a real UR arm or Muca board"
+    )
     parser.addoption("--slow", action="store_true", help="run long soaks and benchmark-sized tests")
 
 

@@ -159,9 +159,8 @@ def test_only_given_parameters_reach_the_method(simulated, monkeypatch, tmp_path
     module = types.ModuleType("fake_method_for_test")
     module.localize = fake_localize
     monkeypatch.setitem(sys.modules, "fake_method_for_test", module)
-    import varskin.localize  # noqa: F401  (the registry module)
+    from varskin import localization as registry
 
-    registry = sys.modules["varskin.localize"]
     monkeypatch.setitem(registry.METHODS, "fake", "fake_method_for_test")
     logs, _ = simulated
     assert main(["localize", str(logs), "--method", "fake", "-q"]) == 0

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from varskin.errors import InputError
-from varskin.localize import DEFAULT_METHOD, localize, paper, peakfit
+from varskin.localization import DEFAULT_METHOD, localize, paper, peakfit
 from varskin.predictions import OK
 from varskin.simulate import simulate_session, uniform_grid
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from varskin.localize import peakfit
+from varskin.localization import peakfit
 from varskin.pointlogs import PointLogs
 from varskin.predictions import OK
 from varskin.scene import ADC_MAX, Scene, SceneParams

@@ -9,7 +9,7 @@ import pytest
 
 import varskin
 from varskin.errors import InputError
-from varskin.localize import paper
+from varskin.localization import paper
 from varskin.pointlogs import PointLogs
 from varskin.simulate import simulate_session, uniform_grid
 

@@ -29,8 +29,14 @@ def test_published_patch_a_layout(patch_a):
     [
         ("name: p\n", "missing key 'size_mm'"),
         ("name: p\nsize_mm: [10, 5]\ntx_x_mm: [1, 'a']\nrx_y_mm: [1]\n", "tx_x_mm[1]"),
-        ("name: p\nsize_mm: [10, 5]\ntx_x_mm: [1]\nrx_y_mm: [1]\nsensors: [{name: a, tx: 3, rx: 0}]\n", "sensors[0].tx"),
-        ("name: p\nsize_mm: [10, 5]\ntx_x_mm: [1]\nrx_y_mm: [1, 2]\nsensors: [{name: a, tx: 0, rx: 0}, {name: a, tx: 0, rx: 1}]\n", "repeated"),
+        (
+            "name: p\nsize_mm: [10, 5]\ntx_x_mm: [1]\nrx_y_mm: [1]\nsensors: [{name: a, tx: 3, rx: 0}]\n",
+            "sensors[0].tx",
+        ),
+        (
+            "name: p\nsize_mm: [10, 5]\ntx_x_mm: [1]\nrx_y_mm: [1, 2]\nsensors: [{name: a, tx: 0, rx: 0}, {name: a, tx: 0, rx: 1}]\n",
+            "repeated",
+        ),
         ("name: [unclosed\n", "not valid YAML"),
     ],
 )
@@ -61,4 +67,9 @@ def test_scene_response_peaks_at_true_position(patch_b):
 
 def test_patch_defaults_name_sensors_y_fastest():
     p = patch_from_dict({"name": "t", "size_mm": [10, 5], "tx_x_mm": [1, 2], "rx_y_mm": [1, 3]})
-    assert [(s.name, s.tx, s.rx) for s in p.sensors] == [("S1", 0, 0), ("S2", 0, 1), ("S3", 1, 0), ("S4", 1, 1)]
+    assert [(s.name, s.tx, s.rx) for s in p.sensors] == [
+        ("S1", 0, 0),
+        ("S2", 0, 1),
+        ("S3", 1, 0),
+        ("S4", 1, 1),
+    ]

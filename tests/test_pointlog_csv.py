@@ -9,7 +9,7 @@ import pytest
 
 import varskin
 from varskin.errors import InputError, PointLogFormatError
-from varskin.localize import localize
+from varskin.localization import localize
 from varskin.pointlog_csv import (
     read_point_logs,
     read_truth_csv,

@@ -5,7 +5,7 @@ format and ``localize`` runs a localization method on it.
 """
 
 from varskin.errors import VarskinError
-from varskin.localize import localize
+from varskin.localization import localize
 from varskin.patch import Patch, load_patch
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import Predictions, SensorEstimate

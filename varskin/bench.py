@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from varskin.evaluate import rms_n_minus_1
-from varskin.localize import METHODS
-from varskin.localize import localize as run_method
+from varskin.localization import METHODS
+from varskin.localization import localize as run_method
 from varskin.patch import builtin_patch
 from varskin.predictions import OK
 from varskin.progress import Progress

@@ -135,8 +135,12 @@ def patch_from_dict(data: object, source: str = "<patch>") -> Patch:
     if not isinstance(board, dict):
         raise _err(source, "'board' must be a mapping")
     wiring = BoardWiring(
-        tx_lines=_ints(source, "board.tx_lines", board.get("tx_lines", list(range(len(tx_x)))), len(tx_x)),
-        rx_lines=_ints(source, "board.rx_lines", board.get("rx_lines", list(range(len(rx_y)))), len(rx_y)),
+        tx_lines=_ints(
+            source, "board.tx_lines", board.get("tx_lines", list(range(len(tx_x)))), len(tx_x)
+        ),
+        rx_lines=_ints(
+            source, "board.rx_lines", board.get("rx_lines", list(range(len(rx_y)))), len(rx_y)
+        ),
         reverse_tx=bool(board.get("reverse_tx", False)),
         reverse_rx=bool(board.get("reverse_rx", False)),
         inverted=bool(board.get("inverted", False)),

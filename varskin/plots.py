@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
 from scipy.spatial import QhullError
 
-from varskin.localize import paper
+from varskin.localization import paper
 from varskin.pointlogs import PointLogs
 from varskin.predictions import OK, Predictions
 

@@ -107,7 +107,9 @@ class PointLogs:
             xy_mm=np.array([[g.x_mm, g.y_mm] for g in logs], float).reshape(k, 2),
             values=np.array([g.values for g in logs], float).reshape(k, n),
             n_samples=np.array([g.n_samples for g in logs], dtype=np.int64),
-            sample_sd=np.array([g.sample_sd for g in logs], float).reshape(k, n) if has_sd else None,
+            sample_sd=np.array([g.sample_sd for g in logs], float).reshape(k, n)
+            if has_sd
+            else None,
             rest=rest,
             rest_sd=rest_sd,
             t_s=np.array([g.t_s for g in logs], float) if has_t else None,

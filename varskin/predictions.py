@@ -23,7 +23,9 @@ class SensorEstimate:
     sensor: str
     x_mm: float | None
     y_mm: float | None
-    sigma_mm: float | None = None  # 1-sigma radial-per-axis uncertainty; None if the method has none
+    sigma_mm: float | None = (
+        None  # 1-sigma radial-per-axis uncertainty; None if the method has none
+    )
     snr_db: float | None = None
     status: str = OK  # "ok" or one word: dead, saturated, flat, outside, ...
 
@@ -65,7 +67,16 @@ class Predictions:
             w = csv.writer(f)
             w.writerow(["sensor", "x_mm", "y_mm", "sigma_mm", "snr_db", "status"])
             for e in self.estimates:
-                w.writerow([e.sensor, _fmt(e.x_mm), _fmt(e.y_mm), _fmt(e.sigma_mm), _fmt(e.snr_db, 2), e.status])
+                w.writerow(
+                    [
+                        e.sensor,
+                        _fmt(e.x_mm),
+                        _fmt(e.y_mm),
+                        _fmt(e.sigma_mm),
+                        _fmt(e.snr_db, 2),
+                        e.status,
+                    ]
+                )
 
     def to_dict(self) -> dict:
         return {

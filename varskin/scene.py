@@ -114,14 +114,14 @@ class Scene:
             true_xy = design.copy()
         lo, hi = params.rest_range
         rest = rng.uniform(lo, hi, n)
-        noise = np.clip(
-            params.noise_median * np.exp(rng.normal(0, 0.2, n)), *params.noise_range
-        )
+        noise = np.clip(params.noise_median * np.exp(rng.normal(0, 0.2, n)), *params.noise_range)
         peak = np.clip(params.peak_median * np.exp(rng.normal(0, 0.45, n)), *params.peak_range)
         width = np.exp(rng.normal(0, params.width_spread, (n, 1)))
         aniso = np.exp(rng.normal(0, params.anisotropy_spread, (n, 1)) * np.array([[1, -1]]))
         drift = np.clip(rng.normal(0, params.drift_sd, n), -params.drift_max, params.drift_max)
-        return cls(patch, params, true_xy, rest, noise, peak, width * aniso, drift, np.zeros(n, bool))
+        return cls(
+            patch, params, true_xy, rest, noise, peak, width * aniso, drift, np.zeros(n, bool)
+        )
 
     def with_params(self, **changes) -> Scene:
         return replace(self, params=replace(self.params, **changes))
@@ -133,9 +133,7 @@ class Scene:
         t = np.asarray(t_s, float)[..., None]
         return self.drift * (1.0 - np.exp(-t / self.params.drift_tau_s))
 
-    def response(
-        self, x_mm: float, y_mm: float, force_n: float, probe: ProbeModel
-    ) -> np.ndarray:
+    def response(self, x_mm: float, y_mm: float, force_n: float, probe: ProbeModel) -> np.ndarray:
         """Noise-free change of every sensor (counts, positive = touch) for one press."""
         if force_n <= 0:
             return np.zeros(len(self.rest))

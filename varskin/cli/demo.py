@@ -8,13 +8,11 @@ truth, so a new user sees the whole pipeline and both numbers at once.
 
 from __future__ import annotations
 
-import importlib
 import json
 import sys
 from pathlib import Path
 
-# varskin.localize is shadowed by the function of that name on the package; fetch the module.
-registry = importlib.import_module("varskin.localize")
+from varskin import localization as registry
 
 DEMO_SENSOR = "S14"  # the sensor the paper's figures show
 
@@ -57,7 +55,7 @@ def run(args) -> int:
 def _run(args) -> int:
     from varskin.cli.localize import print_warnings, write_plots
     from varskin.evaluate import evaluate
-    from varskin.localize import localize
+    from varskin.localization import localize
     from varskin.patch import builtin_patch
     from varskin.pointlog_csv import (
         read_point_logs,

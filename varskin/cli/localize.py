@@ -8,14 +8,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import sys
 from pathlib import Path
 
+from varskin import localization as registry
 from varskin.errors import InputError
-
-# varskin.localize is shadowed by the function of that name on the package; fetch the module.
-registry = importlib.import_module("varskin.localize")
 
 
 def register(subparsers) -> None:
@@ -111,7 +108,7 @@ def _f(v, digits: int = 2) -> str:
 
 
 def run(args) -> int:
-    from varskin.localize import localize
+    from varskin.localization import localize
     from varskin.pointlog_csv import read_point_logs
 
     logs = read_point_logs(args.pointlogs)

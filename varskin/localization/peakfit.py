@@ -19,8 +19,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from varskin.errors import InputError
-from varskin.localize import _peak_model as pm
-from varskin.localize._layout_prior import shrink_to_wires
+from varskin.localization import _peak_model as pm
+from varskin.localization._layout_prior import shrink_to_wires
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate

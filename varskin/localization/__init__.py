@@ -14,8 +14,8 @@ from varskin.predictions import Predictions
 
 # name -> module path; the first entry of DEFAULT_METHOD is what users get without --method.
 METHODS: dict[str, str] = {
-    "peakfit": "varskin.localize.peakfit",
-    "paper": "varskin.localize.paper",
+    "peakfit": "varskin.localization.peakfit",
+    "paper": "varskin.localization.paper",
 }
 DEFAULT_METHOD = "peakfit"
 
