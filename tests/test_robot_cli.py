@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -114,12 +113,6 @@ def test_help_names_units_and_the_move_flag(capsys):
     assert "--move" in out and "default: 3" in out
 
 
-def _sim_available() -> bool:
-    return all(
-        importlib.util.find_spec(m) is not None for m in ("robot.ur", "robot.sim_controller")
-    )
-
-
 @pytest.fixture
 def sim_snapshot(monkeypatch):
     """Start the launch's simulated controller as the CLI does, and snapshot what really
@@ -146,12 +139,6 @@ def sim_snapshot(monkeypatch):
     return snap
 
 
-needs_sim = pytest.mark.skipif(
-    not _sim_available(), reason="robot.ur / robot.sim_controller not available"
-)
-
-
-@needs_sim
 def test_sim_launch_through_ur_rtde_moves_nothing_without_move(sim_snapshot, capsys):
     assert main(["robot", "check", str(SIM)]) == 0
     out = capsys.readouterr().out
@@ -162,7 +149,6 @@ def test_sim_launch_through_ur_rtde_moves_nothing_without_move(sim_snapshot, cap
     assert sim_snapshot["scripts"] == 0 and len(sim_snapshot["commands"]) == 0
 
 
-@needs_sim
 def test_sim_launch_through_ur_rtde_touches_with_move(sim_snapshot, capsys):
     assert main(["robot", "check", str(SIM), "--move", "--touches", "1"]) == 0
     out = capsys.readouterr().out

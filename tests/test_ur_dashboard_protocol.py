@@ -7,11 +7,10 @@ from __future__ import annotations
 import socket
 import time
 
+import dashboard_client  # ur-rtde is a hard dependency: missing it must fail, not skip
 import pytest
 
 from robot.sim_controller import POLYSCOPE_VERSION, SimRig, SimulatedController
-
-dashboard_client = pytest.importorskip("dashboard_client")
 
 UNLOCK_DELAY_S = 1.0
 

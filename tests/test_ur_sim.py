@@ -11,11 +11,10 @@ import time
 
 import numpy as np
 import pytest
+import rtde_control  # ur-rtde is a hard dependency: missing it must fail, not skip
+import rtde_receive  # ur-rtde is a hard dependency: missing it must fail, not skip
 
 from robot.sim_controller import SimRig, SimulatedController, rtde_type
-
-rtde_control = pytest.importorskip("rtde_control")
-rtde_receive = pytest.importorskip("rtde_receive")
 
 
 @pytest.fixture(scope="module")

@@ -181,3 +181,14 @@ def builtin_patch(name: str) -> Patch:
 def config_dir() -> Path:
     """The repository's ``configs/`` folder (the package is used from a checkout)."""
     return Path(__file__).resolve().parent.parent / "configs"
+
+
+def resolve_patch(spec: str | Path) -> Patch:
+    """A patch YAML path, or the name of a patch shipped in ``configs/`` (``patch_b``)."""
+    path = Path(spec)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        return load_patch(path)
+    if (config_dir() / f"{spec}.yaml").exists():
+        return builtin_patch(str(spec))
+    names = sorted(p.stem for p in config_dir().glob("patch_*.yaml"))
+    raise ConfigError(f"{spec}: no such patch file or builtin patch (builtin: {', '.join(names)})")

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from varskin.errors import ConfigError
-from varskin.patch import Patch, builtin_patch, config_dir, load_patch
+from varskin.patch import resolve_patch
 
 
 def register(subparsers) -> None:
@@ -107,14 +107,6 @@ def register(subparsers) -> None:
     board.set_defaults(func=lambda args: board.print_help() or 0)
 
 
-def resolve_patch(spec: str) -> Patch:
-    """A path to a patch YAML, or the name of a built-in patch (``patch_a``, ``patch_b``)."""
-    path = Path(spec)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return load_patch(path)
-    if (config_dir() / f"{spec}.yaml").exists():
-        return builtin_patch(spec)
-    raise ConfigError(f"--patch {spec!r}: no such file and no built-in patch of that name")
 
 
 def cmd_sim(args) -> int:

@@ -84,7 +84,9 @@ def _run(args) -> int:
     summaries = []
     for name in methods:
         params = {"ppcm": args.ppcm} if name == "paper" and args.ppcm is not None else {}
-        predictions = localize(logs, method=name, **params)
+        # The wiring is known from the patch config, so the new method gets its layout prior.
+        extra = {} if name == "paper" else {"patch": patch}
+        predictions = localize(logs, method=name, **params, **extra)
         result = evaluate(predictions, truth)
         stem = f"pred_{name}"
         predictions.to_csv(out / f"{stem}.csv")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from varskin import localization as registry
 from varskin.errors import InputError
+from varskin.patch import resolve_patch
 
 
 def register(subparsers) -> None:
@@ -45,6 +46,13 @@ def register(subparsers) -> None:
         metavar="X0,Y0,X1,Y1",
         help="paper method: area to interpolate over, mm in the patch frame; "
         "default the bounding box of the probe locations",
+    )
+    p.add_argument(
+        "--patch",
+        metavar="PATCH",
+        help="patch YAML or builtin name (patch_a, patch_b): its TX/RX wiring turns on peakfit's "
+        "layout prior (sensors on one wire share nearly one line) and its outline is drawn in "
+        "plots; default none",
     )
     p.add_argument("-o", "--output", metavar="PRED.csv", help="write predictions CSV here")
     p.add_argument("--json", metavar="PRED.json", help="also write predictions as JSON")
@@ -114,7 +122,15 @@ def run(args) -> int:
     logs = read_point_logs(args.pointlogs)
     print_warnings(logs)
     params = method_params(args)
-    predictions = localize(logs, method=args.method, **params)
+    patch = resolve_patch(args.patch) if args.patch else None
+    method_kwargs = dict(params)
+    if patch is not None:
+        if args.method == "paper":
+            raise InputError(
+                "--patch: the paper method has no layout prior; drop --patch or use peakfit"
+            )
+        method_kwargs["patch"] = patch
+    predictions = localize(logs, method=args.method, **method_kwargs)
     sensors = list(logs.sensors)
     if args.plot_sensors:
         sensors = [s.strip() for s in args.plot_sensors.split(",") if s.strip()]
@@ -127,7 +143,8 @@ def run(args) -> int:
         if args.json:
             predictions.to_json(args.json)
         if args.plots:
-            write_plots(Path(args.plots), logs, predictions, sensors, params)
+            outline = (patch.length_mm, patch.width_mm) if patch else None
+            write_plots(Path(args.plots), logs, predictions, sensors, params, outline=outline)
     if not args.quiet:
         print(prediction_table(predictions))
         ok = sum(e.status == "ok" for e in predictions)

@@ -10,8 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from varskin.errors import ConfigError
-from varskin.patch import Patch, builtin_patch, config_dir, load_patch
+from varskin.patch import resolve_patch
 
 
 def register(subparsers) -> None:
@@ -63,15 +62,6 @@ def parse_grid(text: str) -> tuple[int, int]:
     return nx, ny
 
 
-def resolve_patch(spec: str) -> Patch:
-    """A YAML path, or the name of a patch shipped in configs/."""
-    path = Path(spec)
-    if path.suffix in (".yaml", ".yml") or path.exists():
-        return load_patch(path)
-    if (config_dir() / f"{spec}.yaml").exists():
-        return builtin_patch(spec)
-    names = sorted(p.stem for p in config_dir().glob("patch_*.yaml"))
-    raise ConfigError(f"{spec}: no such patch file or builtin patch (builtin: {', '.join(names)})")
 
 
 def run(args) -> int:
