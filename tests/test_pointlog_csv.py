@@ -289,3 +289,13 @@ def test_bad_truth_names_line_and_column(tmp_path, text, line, column):
     path = write(tmp_path, text, "truth.csv")
     with pytest.raises(InputError, match=rf"^{re.escape(str(path))}:{line}:{column}: "):
         read_truth_csv(path)
+
+
+def test_spaces_around_the_touch_cell_are_read_like_any_other_cell(tmp_path):
+    text = (
+        "touch,x_mm,y_mm,A,B\n baseline ,,,1,2\nbaseline,,,3,4\n"
+        " 1,0,0,5,6\n2 ,10,0,7,8\n3,0,10,9,9\n"
+    )
+    logs = read_point_logs(write(tmp_path, text))
+    np.testing.assert_allclose(logs.rest, [2.0, 3.0])
+    assert logs.touch.tolist() == [1, 2, 3]

@@ -187,13 +187,16 @@ def _parse_fast(layout: _Layout, rows: list[str], line_no: np.ndarray):
     commas = layout.n_fields - 1
     if any(r.count(",") != commas for r in rows):
         raise ValueError("field count")
-    is_base = [r.startswith("baseline,") for r in rows]
+    # Cells may carry spaces around them (the slow pass strips them too).
+    firsts = [r.partition(",")[0] for r in rows]
+    is_base = [f.strip() == BASELINE for f in firsts]
     if any(is_base):
         base_rows = [r for r, b in zip(rows, is_base, strict=True) if b]
         touch_rows = [r for r, b in zip(rows, is_base, strict=True) if not b]
+        touch_firsts = [f for f, b in zip(firsts, is_base, strict=True) if not b]
     else:
-        base_rows, touch_rows = [], rows
-    if any(not r.startswith("baseline,,,") for r in base_rows):
+        base_rows, touch_rows, touch_firsts = [], rows, firsts
+    if any(r.split(",", 3)[1].strip() or r.split(",", 3)[2].strip() for r in base_rows):
         raise ValueError("baseline position")
 
     baseline = None
@@ -210,7 +213,7 @@ def _parse_fast(layout: _Layout, rows: list[str], line_no: np.ndarray):
 
     k = len(touch_rows)
     if k:
-        touch = np.array([r.partition(",")[0] for r in touch_rows]).astype(np.int64)
+        touch = np.array(touch_firsts).astype(np.int64)
         data = np.loadtxt(
             touch_rows, delimiter=",", comments=None, ndmin=2, usecols=range(1, layout.n_fields)
         )

@@ -72,6 +72,22 @@ class SceneParams:
     inverted: bool = False  # a touch lowers the value on some benches
     hidden_layout: bool = True  # False: the truth is the published design layout
     force_exponent: float = 0.5  # response ~ (F / F_nominal) ** exponent, saturating
+    # Response versus distance, all with half maximum at d = w: "lorentzian" 1/(1+(d/w)^2)
+    # (fitted to the public recordings), "gaussian" 2^-(d/w)^2 and "exponential" 2^-(d/w)
+    # make scenes whose shape a localizer's model does not know (robustness tests).
+    shape: str = "lorentzian"
+
+
+SHAPES = ("lorentzian", "gaussian", "exponential")
+
+
+def _profile(shape: str, d2: np.ndarray) -> np.ndarray:
+    """Response at squared normalized distance d2 = (d/w)^2; each is 1/2 at d = w."""
+    if shape == "gaussian":
+        return np.exp2(-d2)
+    if shape == "exponential":
+        return np.exp2(-np.sqrt(d2))
+    return 1.0 / (1.0 + d2)
 
 
 @dataclass
@@ -91,6 +107,8 @@ class Scene:
     @classmethod
     def create(cls, patch: Patch, seed: int = 0, params: SceneParams | None = None) -> Scene:
         params = params or SceneParams()
+        if params.shape not in SHAPES:
+            raise ValueError(f"unknown shape {params.shape!r}: use one of {', '.join(SHAPES)}")
         rng = np.random.default_rng(seed)
         n = len(patch.sensors)
         design = patch.design_xy
@@ -142,7 +160,7 @@ class Scene:
         gain = f**self.params.force_exponent / (1 + 0.1 * max(f - 1, 0))
         w = probe.width_mm * self.width_scale  # (N, 2)
         d = (np.array([x_mm, y_mm]) - self.true_xy) / w
-        core = 1.0 / (1.0 + (d**2).sum(axis=1))
+        core = _profile(self.params.shape, (d**2).sum(axis=1))
         # Mutual capacitance also couples along the TX wire (constant x) and RX wire.
         cw = self.params.wire_coupling_width_mm
         along = np.exp(-0.5 * ((x_mm - self.true_xy[:, 0]) / cw) ** 2) + np.exp(
