@@ -24,27 +24,28 @@ def register(subparsers) -> None:
     sim = sub.add_parser(
         "sim",
         help="start a simulated Muca board on a pseudo-terminal and print its device path",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    sim.add_argument("--patch", default="patch_b", help="patch YAML path or built-in name")
+    sim.add_argument(
+        "--patch", default="patch_b", help="patch YAML path or built-in name; default patch_b"
+    )
     sim.add_argument(
         "--rate",
         type=float,
         default=None,
-        help="frame rate, frames/s (default: as fast as --baud allows, ~8/s at 115200)",
+        help="frame rate, frames/s; default as fast as --baud allows (~8/s at 115200)",
     )
     sim.add_argument(
         "--baud",
         type=int,
         default=115200,
-        help="paced line rate, bit/s (0: no limit; a pty itself ignores baud)",
+        help="paced line rate, bit/s (0: no limit; a pty itself ignores baud); default 115200",
     )
     sim.add_argument(
         "--touch-demo",
         action="store_true",
         help="press each sensor in turn (1.5 s on, 1 s off) instead of staying idle",
     )
-    sim.add_argument("--seed", type=int, default=0, help="scene and noise seed")
+    sim.add_argument("--seed", type=int, default=0, help="scene and noise seed; default 0")
     sim.add_argument(
         "--reverse-tx",
         action="store_true",
@@ -69,20 +70,19 @@ def register(subparsers) -> None:
     sim.add_argument(
         "--link",
         default=None,
-        help="stable device path to publish (default: a new temporary directory)",
+        help="stable device path to publish; default a link in a new temporary directory",
     )
     sim.add_argument(
         "--seconds",
         type=float,
         default=None,
-        help="stop after this long, s (default: until Ctrl-C)",
+        help="stop after this long, s; default run until Ctrl-C",
     )
     sim.set_defaults(func=cmd_sim)
 
     rec = sub.add_parser(
         "record",
         help="record frames from a Muca board to CSV",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     rec.add_argument(
         "--port",
@@ -96,17 +96,17 @@ def register(subparsers) -> None:
     )
     rec.add_argument("--seconds", type=float, required=True, help="how long to record, s")
     rec.add_argument("-o", "--output", required=True, help="frames CSV to write")
-    rec.add_argument("--baud", type=int, default=115200, help="serial baud rate, bit/s")
+    rec.add_argument(
+        "--baud", type=int, default=115200, help="serial baud rate, bit/s; default 115200"
+    )
     rec.add_argument(
         "--frame-timeout",
         type=float,
         default=5.0,
-        help="give up if no valid frame arrives within this long, s",
+        help="give up if no valid frame arrives within this long, s; default 5",
     )
     rec.set_defaults(func=cmd_record)
     board.set_defaults(func=lambda args: board.print_help() or 0)
-
-
 
 
 def cmd_sim(args) -> int:
