@@ -43,7 +43,6 @@ from varskin.errors import (
     ProtectiveStop,
     RobotError,
     RobotTimeout,
-    SafetyViolation,
     ScriptNotRunning,
 )
 
@@ -435,15 +434,7 @@ class URArm:
         approach = p - _DOWN * spec.clearance_m
         floor = p + _DOWN * spec.max_depth_m
         # refuse before anything moves
-        if hasattr(self.envelope, "check_touch_spec"):
-            self.envelope.check_touch_spec(spec)
-        elif (
-            spec.max_force_n > self.envelope.max_force_n
-            or spec.search_speed_m_s > self.envelope.max_contact_speed_m_s
-        ):
-            raise SafetyViolation(
-                f"touch spec {spec} exceeds the envelope's force or contact-speed limits"
-            )
+        self.envelope.check_touch_spec(spec)
         self.envelope.check_plan(np.array([approach, p, floor]), "touch point")
         limit_n = min(spec.max_force_n, self.envelope.max_force_n)
         period = 1.0 / self.frequency_hz
