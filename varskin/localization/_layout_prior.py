@@ -20,12 +20,18 @@ def shrink_to_wires(
     groups: np.ndarray,
     usable: np.ndarray,
     min_scatter_mm: float,
+    shared: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pull ``coord`` (N,) towards each group's line in ``along`` (N,); returns (coord, var).
 
     ``var`` are the per-sensor variances of ``coord``; ``groups`` (N,) the wire index (-1 for
     none); only ``usable`` sensors inform a line, but every usable sensor of a group with
     at least two of them is updated.
+
+    ``shared`` (N,) is the part of ``var`` that a sensor's wire-mates share (their errors
+    move together, e.g. from the same touches' placement): the pull is weighed with the
+    full variances, but the returned variance keeps the shared part, which the wire-mates
+    cannot average out, and counts the own parts' of the sensor and of its mates.
     """
     out = coord.copy()
     out_var = var.copy()
@@ -46,7 +52,14 @@ def shrink_to_wires(
         prior_var = tau2 + loo_var
         post_var = 1.0 / (1.0 / v + 1.0 / prior_var)
         out[members] = post_var * (c / v + loo / prior_var)
-        out_var[members] = post_var
+        if shared is None:
+            out_var[members] = post_var
+        else:
+            # Error of lam*c + (1-lam)*loo when the shared part is common to c and loo.
+            sh = np.clip(shared[members], 0.0, v)
+            lam = post_var / v
+            loo_own = loo_var * np.clip(1.0 - sh.mean() / np.maximum(v.mean(), 1e-300), 0, 1)
+            out_var[members] = sh + lam**2 * (v - sh) + (1.0 - lam) ** 2 * (tau2 + loo_own)
     return out, out_var
 
 

@@ -170,6 +170,9 @@ class FitResult:
     n_eff: np.ndarray  # (S,) effective number of points that carried the fit
     converged: np.ndarray  # (S,) bool
     last_step: np.ndarray  # (S,) mm moved in the last iteration (small: nearly converged)
+    # (S,) per-axis variance (mm^2) that comes from the touches' placement and gain: shared
+    # by the sensors that see the same touches, so pooling sensors does not average it out.
+    var_touch: np.ndarray
 
 
 def fit(
@@ -360,6 +363,7 @@ def fit(
     except np.linalg.LinAlgError:
         Hinv = np.linalg.pinv(H)
     cov_xy = Hinv[:, :2, :2] * var[:, None, None]
+    var_touch = np.zeros(S)
     if touch_var is not None:
         # Where each touch landed and how hard it pressed are only known to their posterior
         # variance; propagate that through the fit (first order: d theta / d touch).
@@ -369,13 +373,15 @@ def fit(
         jx, jy = J[..., SX].T, J[..., SY].T
         for ax in (0, 1):
             Ma = Mi[:, ax, :]
-            cov_xy[:, ax, ax] += (Ma * Ma * (v_d * (jx * jx + jy * jy) + v_lg * bump * bump)).sum(
-                axis=1
-            )
+            part = (Ma * Ma * (v_d * (jx * jx + jy * jy) + v_lg * bump * bump)).sum(axis=1)
+            cov_xy[:, ax, ax] += part
+            var_touch += 0.5 * part
     del wsum
     # A sensor that wandered beyond the gathered touches would miss data: not converged.
     strayed = np.hypot(*(theta[:, :2] - start_xy).T) > reach - 1.5 * np.maximum(
         s.window_widths * np.exp(0.5 * (theta[:, LW] + theta[:, LWY])), min_radius
     )
     converged &= ~strayed
-    return FitResult(theta, cov_xy, scale, n_eff, converged, np.where(strayed, np.inf, last_step))
+    return FitResult(
+        theta, cov_xy, scale, n_eff, converged, np.where(strayed, np.inf, last_step), var_touch
+    )

@@ -54,7 +54,10 @@ SPARSE = "sparse"  # too few usable touches near the sensor (or in total)
 COLLINEAR = "collinear"  # the probes lie on a line: one coordinate is unobservable
 OUTSIDE = "outside"  # the peak lies beyond the probed area: extrapolation refused
 UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_mm)
-FALLBACK = "fallback"  # the peak fit failed its sanity checks; x,y from a robust centroid
+# The peak fit failed its sanity checks (not converged, footprint out of range, wandered
+# from the map's top, residuals too large for a single peak): no position is reported. A
+# centroid fallback was tried and rejected: on such maps its error is unbounded.
+IRREGULAR = "irregular"
 WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
@@ -121,6 +124,7 @@ class _SensorFit:
     floor: np.ndarray  # (N,) normalization: value = floor + amp * u
     amp: np.ndarray
     cov_xy: np.ndarray  # (N, 2, 2)
+    var_touch: np.ndarray  # (N,) per-axis part of cov_xy due to the touches' nuisances
     scale: np.ndarray  # residual sigma, normalized
     noise: np.ndarray  # per-touch noise, normalized
     n_eff: np.ndarray
@@ -181,6 +185,7 @@ class Localizer:
             floor=np.zeros(n),
             amp=np.ones(n),
             cov_xy=np.zeros((n, 2, 2)),
+            var_touch=np.zeros(n),
             scale=np.ones(n),
             noise=np.zeros(n),
             n_eff=np.zeros(n),
@@ -376,6 +381,7 @@ class Localizer:
         f.floor[cols] = floor
         f.amp[cols] = amp
         f.cov_xy[cols] = res.cov_xy
+        f.var_touch[cols] = res.var_touch
         f.scale[cols] = res.scale
         f.noise[cols] = noise
         f.n_eff[cols] = res.n_eff
@@ -757,7 +763,7 @@ def _predictions(loc: Localizer) -> Predictions:
         elif dist_out[i] > margin[i]:
             status[i] = OUTSIDE
         elif not sane[i]:
-            status[i] = FALLBACK
+            status[i] = IRREGULAR
         elif sd[i] * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"]:
             status[i] = UNCERTAIN
     # A clipped sensor that could not be located from its unclipped flanks: clipping is why.
@@ -767,21 +773,21 @@ def _predictions(loc: Localizer) -> Predictions:
     raw_amp = th[:, pm.AMP] * f.amp
     ok = status == OK
     if ok.sum() >= 3:
-        weak = ok & (raw_amp < WEAK_FRACTION * np.median(raw_amp[ok]))
+        ref = WEAK_FRACTION * np.median(raw_amp[ok])
+        weak = ok & (raw_amp < ref)
         status[weak] = WEAK
     ok = status == OK
     if loc.groups is not None and loc.params["layout_prior"] and ok.sum() >= 2:
         tx, rx = loc.groups
         floor = float(loc.params["wire_scatter_mm"])
-        sdx, sdy = sd.copy(), sd.copy()
-        nx, vx = shrink_to_wires(xy[:, 0], sdx**2, xy[:, 1], tx, ok, floor)
-        ny, vy = shrink_to_wires(xy[:, 1], sdy**2, xy[:, 0], rx, ok, floor)
+        # Sensors on one wire see largely the same touches, so the part of their error that
+        # comes from where those touches landed moves them together: pooling the wire's
+        # crossings averages only their own parts; the shared part stays in the error bar.
+        shared = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
+        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, ok, floor, shared)
+        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, ok, floor, shared)
         xy = np.column_stack([nx, ny])
         sd = np.where(ok, np.sqrt((vx + vy) / 2.0), sd)
-    # Fallback: a robust floor-subtracted weighted centroid near the top of the map.
-    fb = status == FALLBACK
-    if fb.any():
-        xy[fb], sd[fb] = _centroid_fallback(loc, np.flatnonzero(fb), h)
     sigma = sd * R95_PER_AXIS_SD / 2.0
     return _build(loc, status, xy, sigma, snr, params)
 
@@ -792,22 +798,6 @@ def _rest_saturated(loc: Localizer, i: int) -> bool:
         return False
     sd = loc.rest_sd[i] if loc.rest_sd is not None and math.isfinite(loc.rest_sd[i]) else 1.0
     return r >= ADC_MAX - max(3 * sd, 1.0) or r <= max(3 * sd, 1.0)
-
-
-def _centroid_fallback(loc: Localizer, cols: np.ndarray, h: float):
-    K = loc.n_logs
-    P = loc._P[:K]
-    V = loc._V[:K][:, cols] * loc._sign
-    U = (V - loc.fit.floor[cols]) / loc.fit.amp[cols]
-    U = np.where(np.isfinite(U), U, 0.0)
-    kmax = np.argmax(U, axis=0)
-    d = np.hypot(P[:, 0:1] - P[kmax, 0][None], P[:, 1:2] - P[kmax, 1][None])
-    w = np.clip(U - 0.5, 0.0, None) * (d <= 2.0 * h)
-    w[kmax, np.arange(cols.size)] = np.maximum(w[kmax, np.arange(cols.size)], 1e-9)
-    ws = w.sum(axis=0)
-    xy = np.column_stack([(w * P[:, 0:1]).sum(0) / ws, (w * P[:, 1:2]).sum(0) / ws])
-    # A centroid on a grid is good to about a third of the spacing at best.
-    return xy, np.full(cols.size, h / 2.0)
 
 
 def _snr(loc: Localizer) -> np.ndarray:
@@ -827,7 +817,7 @@ def _build(loc, status, xy, sigma, snr, params) -> Predictions:
     for i, name in enumerate(loc.sensors):
         s = snr[i]
         snr_i = float(s) if np.isfinite(s) else None
-        has_xy = status[i] in (OK, FALLBACK) and np.isfinite(xy[i]).all()
+        has_xy = status[i] == OK and np.isfinite(xy[i]).all()
         sig = float(sigma[i]) if has_xy and np.isfinite(sigma[i]) else None
         est.append(
             SensorEstimate(
