@@ -24,6 +24,8 @@ def check(pred, n):
         assert p.status and " " not in p.status
         if p.status == OK:
             assert p.x_mm is not None and p.sigma_mm is not None and p.sigma_mm > 0
+        else:  # the spec: a non-ok status says why there is no position, and there is none
+            assert p.x_mm is None and p.y_mm is None and p.sigma_mm is None, p
     return pred
 
 
@@ -216,3 +218,56 @@ def test_no_sensor_data_at_all():
     )
     pred = check(peakfit.localize(logs), 2)
     assert all(p.status != OK for p in pred)
+
+
+@pytest.mark.parametrize("jump", [0.3, 0.6])
+def test_sensor_whose_readings_jump_between_touches(patch_b, grid, jump):
+    """Touch-to-touch jumps of 30% or 60% of the peak (interference the per-touch sample sd
+    does not show): located within its own error bar, or flagged without a position
+    (``irregular``: the fit failed its sanity checks; no centroid guess is reported)."""
+    statuses = []
+    for seed in (1, 2, 3):
+        s = simulate_session(patch_b, grid, probe="robot", seed=seed)
+        logs = s.point_logs()
+        v = logs.values[:, 12]
+        logs.values[:, 12] = v + np.random.default_rng(seed).normal(0, jump * v.max(), len(v))
+        pred = check(peakfit.localize(logs), 30)
+        est = pred.estimates[12]
+        statuses.append(est.status)
+        if est.status == OK:
+            assert err(pred, s.truth, 12) <= 2.0 * est.sigma_mm
+        # The other sensors are not disturbed.
+        others = np.delete(np.hypot(*(pred.xy() - s.truth).T), 12)
+        assert np.nanmax(others) <= TOL_MM
+    if jump > 0.5:
+        assert all(st != OK for st in statuses), statuses
+        assert "irregular" in statuses
+
+
+def _probed_first_while_drifting(patch, seed, drift, i=0):
+    """A weak sensor (peak 90 counts) in the first probe column whose offset moves by 120
+    counts with the simulator's 60 s time constant: most of the drift happens during its
+    own touches."""
+    scene = Scene.create(patch, seed)
+    scene.drift[i], scene.peak[i] = drift, 90.0
+    s = simulate_session(patch, uniform_grid(patch, 20, 5), probe="robot", seed=seed, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), len(patch.sensors))
+    est = pred.estimates[i]
+    return est, err(pred, s.truth, i) if est.status == OK else None
+
+
+@pytest.mark.parametrize("seed", [1, 2, 4])
+def test_sensor_probed_first_while_its_offset_rises(patch_a, seed):
+    """The floor slope's prior is heavy-tailed, so a clear fast drift is fitted as drift
+    instead of pulling the peak along the scan (Gaussian prior: 2.5-4.3 mm off)."""
+    est, e = _probed_first_while_drifting(patch_a, seed, 120.0)
+    assert est.status == OK and e <= min(TOL_MM, 2.0 * est.sigma_mm), (e, est.sigma_mm)
+
+
+@pytest.mark.xfail(strict=True, reason="known limit: a falling offset at the session start")
+def test_sensor_probed_first_while_its_offset_falls(patch_a):
+    """Known limit (docs/localizer.md): a falling offset peaks the map at the first touches
+    and needs floor curvature the Gaussian curvature prior refuses: located within 2 mm
+    (0.4-1.3 mm on seeds 1, 2, 4) but often beyond its error bar (sigma 0.2-0.3 mm)."""
+    est, e = _probed_first_while_drifting(patch_a, 2, -120.0, i=1)
+    assert est.status != OK or e <= 2.0 * est.sigma_mm

@@ -7,7 +7,6 @@ a live rate and drop counter, and a summary a user can trust (frames, rate, drop
 
 from __future__ import annotations
 
-import argparse
 import signal
 import sys
 import time

@@ -62,8 +62,6 @@ def parse_grid(text: str) -> tuple[int, int]:
     return nx, ny
 
 
-
-
 def run(args) -> int:
     from varskin.cli.localize import writing
     from varskin.pointlog_csv import write_samples_csv, write_truth_csv

@@ -43,6 +43,7 @@ class FitSettings:
     cauchy_c: float = 3.0  # residuals beyond ~c robust sigmas lose weight quickly
     drift_prior_sd: float = 0.2  # floor slope prior, peak heights per minute (weak)
     drift_curve_prior_sd: float = 0.03  # floor curvature prior, peak heights per minute^2
+    drift_prior_tail: float = 2.0  # the slope prior is Cauchy: Gaussian-like within ~2 sd
     width_prior_sd: float = 1.0  # log-width prior around the starting width (weak)
     aspect_prior_sd: float = 0.4  # prior on log(wx / wy): footprints are roughly round
     shared_width_sd: float = 0.25  # log-width spread of sensors around the shared footprint
@@ -235,7 +236,11 @@ def fit(
     # Gaussian priors per sensor: drift slope and curvature ~ 0; log widths near ``width_mean``
     # (the probe's footprint, shared by all sensors) or, without it, weakly near the start.
     Q = np.zeros((S, N_PARAMS, N_PARAMS))
-    Q[:, B1, B1] = 1.0 / s.drift_prior_sd**2
+    # The floor slope gets a heavy-tailed (Cauchy) prior, handled apart from Q: a gentle
+    # drift is shrunk towards none, but a sensor whose data clearly show a fast drift
+    # (probed first while its offset still settles) is not forced to explain it by moving
+    # its peak. The curvature keeps a Gaussian prior: a free curved floor could form a
+    # hump in time that stands in for the peak.
     Q[:, B2, B2] = 1.0 / s.drift_curve_prior_sd**2
     Q[:, CRX, CRX] = Q[:, CTX, CTX] = 1.0 / s.ridge_prior_sd**2
     rho = ridge_width
@@ -256,9 +261,19 @@ def fit(
         mu[:, LW] = width_mean[:, 0]
         mu[:, LWY] = width_mean[:, 1]
 
+    def drift_z(th):
+        return th[:, B1] / (s.drift_prior_sd * s.drift_prior_tail)
+
     def prior_cost(th, cols):
         d = th - mu[cols]
-        return np.einsum("sp,spq,sq->s", d, Q[cols], d)
+        tail = s.drift_prior_tail**2 * np.log1p(drift_z(th) ** 2)
+        return np.einsum("sp,spq,sq->s", d, Q[cols], d) + tail
+
+    def prior_hessian(th, cols):
+        # IRLS form of the Cauchy prior: a Gaussian with the weight at the current value.
+        Qi = Q[cols].copy()
+        Qi[:, B1, B1] = 1.0 / (1.0 + drift_z(th) ** 2) / s.drift_prior_sd**2
+        return Qi
 
     def weights_for(th, res, sc, cols):
         win = window(P[:, cols], th, min_radius, s) * vf[:, cols]
@@ -296,8 +311,9 @@ def fit(
         H, g = normal_equations(wts, J, res)
         # Weak priors keep the floor slope and the width sane when few points carry the fit.
         sc2 = (sc * sc)[:, None, None]
-        g -= np.einsum("spq,sq->sp", Q[idx], th - mu[idx]) * sc2[:, :, 0]
-        H = H + Q[idx] * sc2
+        Qi = prior_hessian(th, idx)
+        g -= np.einsum("spq,sq->sp", Qi, th - mu[idx]) * sc2[:, :, 0]
+        H = H + Qi * sc2
         c0 = cost(th, sc, idx, win)
         accepted = np.zeros(idx.size, bool)
         step = np.zeros_like(th)
@@ -352,7 +368,7 @@ def fit(
     win, wts = weights_for(theta, res, scale, np.arange(S))
     wsum = np.maximum(win.sum(axis=0), 1e-12)
     H, _ = normal_equations(wts, J, res)
-    H = H + Q * (scale * scale)[:, None, None]
+    H = H + prior_hessian(theta, np.arange(S)) * (scale * scale)[:, None, None]
     # Residual variance of the fit (robustly weighted), with the dof the window leaves.
     n_eff = wts.sum(axis=0)
     rss = (wts * res * res).sum(axis=0)

@@ -32,6 +32,9 @@ NAME = "peakfit"
 R95_PER_AXIS_SD = math.sqrt(2.0 * math.log(20.0))
 
 POLISH_ROUNDS = 4  # alternations of touch nuisances and sensor fits in a batch solve
+# LM iterations per sensor in a polish round (warm-started). Located sensors converge in a
+# few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
+POLISH_MAX_ITER: int | None = 25
 UPDATE_ITERATIONS = 4  # a live update warm-starts, so a few LM iterations suffice
 
 DEFAULTS: dict = {
@@ -116,6 +119,20 @@ def _wire_groups(
     return tx, rx
 
 
+def _wire_design(
+    sensors: tuple[str, ...], patch: Patch | None, groups
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Design x of each sensor's TX wire and design y of its RX wire (NaN: unknown)."""
+    if patch is None or groups is None:
+        return None
+    tx, rx = groups
+    tx_x = np.array(patch.tx_x_mm, float)
+    rx_y = np.array(patch.rx_y_mm, float)
+    dx = np.where((tx >= 0) & (tx < tx_x.size), tx_x[np.clip(tx, 0, tx_x.size - 1)], np.nan)
+    dy = np.where((rx >= 0) & (rx < rx_y.size), rx_y[np.clip(rx, 0, rx_y.size - 1)], np.nan)
+    return dx, dy
+
+
 @dataclass
 class _SensorFit:
     """What the last solve left for every sensor (arrays over sensors)."""
@@ -157,6 +174,7 @@ class Localizer:
             cauchy_c=float(self.params["cauchy_c"]),
         )
         self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
+        self.design = _wire_design(self.sensors, self.params["patch"], self.groups)
         cap = 64
         self._k = 0
         self._P = np.zeros((cap, 2))
@@ -339,10 +357,9 @@ class Localizer:
         # The map's top after removing the slow floor trend: a drift as large as the peak
         # must not put the start at the session's first or last touches.
         D = U - _floor_trend(U, valid)
-        theta0 = self._initial(P, D, valid, h)
+        theta0 = self._initial(P, D, valid, h, need=np.zeros(cols.size, bool))
         kmax = np.argmax(np.where(valid, D, -np.inf), axis=0)
         tc = tau[kmax]
-        theta0[:, pm.B0] += np.take_along_axis(U - D, kmax[None, :], axis=0)[0]
         tau = tau[:, None] - tc[None, :]
         start = theta0[:, :2].copy()
         # A previous fit far from where the data now peak is no start: begin afresh there,
@@ -350,6 +367,9 @@ class Localizer:
         w_old = np.exp(0.5 * (f.theta[cols, pm.LW] + f.theta[cols, pm.LWY]))
         far = np.hypot(*(f.theta[cols, :2] - start).T) > np.maximum(2.0 * w_old, 2.0 * h)
         warm = warm & f.fitted[cols] & ~far & np.isfinite(f.theta[cols]).all(axis=1)
+        if (~warm).any():
+            theta0[~warm] = self._initial_shape(P, D[:, ~warm], valid[:, ~warm], h, theta0[~warm])
+        theta0[:, pm.B0] += np.take_along_axis(U - D, kmax[None, :], axis=0)[0]
         if warm.any():
             # Re-express the previous fit in the new normalization and peak time, start there.
             c = cols[warm]
@@ -392,8 +412,12 @@ class Localizer:
         f.n_clipped[cols] = clipped.sum(axis=0)
         f.tc[cols] = tc
 
-    def _initial(self, P, U, valid, h) -> np.ndarray:
-        """Cold start: centre of the map's top, width by a small search, floor and height."""
+    def _initial(self, P, U, valid, h, need: np.ndarray | None = None) -> np.ndarray:
+        """Cold start: centre of the map's top, width by a small search, floor and height.
+
+        The centre is computed for every column (it also tells whether a warm start is still
+        near the data); the width search only for the columns in ``need`` (default: all).
+        """
         S = U.shape[1]
         Um = np.where(valid, U, -np.inf)
         kmax = np.argmax(Um, axis=0)
@@ -406,6 +430,18 @@ class Localizer:
         cy = np.where(wsum > 0, (wts * P[:, 1:2]).sum(axis=0) / np.maximum(wsum, 1e-12), pk[:, 1])
         theta = np.zeros((S, pm.N_PARAMS))
         theta[:, pm.SX], theta[:, pm.SY] = cx, cy
+        theta[:, pm.LW] = theta[:, pm.LWY] = np.log(h)
+        theta[:, pm.AMP] = 1.0
+        if need is None:
+            need = np.ones(S, bool)
+        if need.any():
+            theta[need] = self._initial_shape(P, U[:, need], valid[:, need], h, theta[need])
+        return theta
+
+    def _initial_shape(self, P, U, valid, h, theta) -> np.ndarray:
+        """Width by a small search, then floor and height by linear least squares."""
+        S = U.shape[1]
+        theta = theta.copy()
         best = np.full(S, np.inf)
         Uz = np.where(valid, U, 0.0)
         vf = valid.astype(float)
@@ -541,7 +577,7 @@ class Localizer:
                 )
                 msq = np.mean(self._dxy[:K][use] ** 2, axis=1) + v_d[use]
                 self.place_sd_mm = float(np.clip(np.sqrt(np.mean(msq)), 0.02, 3.0))
-            self._solve(np.arange(n), np.ones(n, bool))
+            self._solve(np.arange(n), np.ones(n, bool), max_iter=POLISH_MAX_ITER)
         self._dirty = False
 
     def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
@@ -590,9 +626,10 @@ class Localizer:
     def _update(self, log: PointLog) -> Predictions:
         """Add one touch and return the updated estimates of every sensor (fast, local).
 
-        The sensors near the new touch are re-fitted, warm-started; the touch's own gain and
-        placement are estimated from the current models. ``result()`` then polishes every
-        sensor and touch to the batch solution.
+        The sensors near the new touch are re-fitted, warm-started; then the touch's own
+        gain and placement are estimated from those models, and the sensors whose view of
+        the touch that changes are re-fitted once more. Every time the session doubles,
+        everything is re-solved from scratch. ``result()`` gives the batch solve.
         """
         if not self._append(log):
             return self._current()
@@ -613,15 +650,14 @@ class Localizer:
             self.solve_all()
             self._dirty = False
             return self._current()
-        self._touch_nuisances(np.array([k]))
-        p = self._P[k] + self._dxy[k]
+        p = self._P[k]  # the touch's own placement offset is estimated below
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
         radius = (
             np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
         )
         near = np.hypot(f.theta[:, pm.SX] - p[0], f.theta[:, pm.SY] - p[1]) < radius
-        # A new maximum far from the current estimate means the start must move: cold start.
-        # A new maximum of the map far from the current estimate: the peak may be elsewhere.
+        # A new maximum of the map far from the current estimate that the model cannot
+        # explain: the peak may be elsewhere, so that sensor restarts from its map's top.
         v_new = self._V[k] * self._sign
         with np.errstate(invalid="ignore"):
             before = (
@@ -630,13 +666,28 @@ class Localizer:
         u_new = (v_new - f.floor) / f.amp
         above_fit = u_new > f.theta[:, pm.B0] + f.theta[:, pm.AMP]  # the model cannot explain it
         new_top = np.isfinite(v_new) & (v_new > before) & above_fit & ~near
-        warm = np.flatnonzero(near & ~new_top)
-        cold = np.flatnonzero(new_top)
-        if warm.size:
-            self._solve(warm, np.ones(warm.size, bool), max_iter=UPDATE_ITERATIONS)
-        if cold.size:
-            # A fresh start needs the full iteration budget; it concerns few sensors.
-            self._solve(cold, np.zeros(cold.size, bool))
+        # One pass over both: a restarted sensor begins at its map's top (a good start) and
+        # the following updates refine it, so a few iterations suffice here too.
+        todo = np.flatnonzero(near | new_top)
+        if todo.size:
+            self._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
+        # The new touch's own gain and placement come from the models it has just updated
+        # (judged by models that had not seen it, a first touch near a sensor would be
+        # "explained" by a wrong offset), then those sensors take one more short pass.
+        self._touch_nuisances(np.array([k]))
+        cand = todo
+        # Only where the estimated gain and placement change what the touch says (a robot's
+        # placement is good to ~0.05 mm: usually nowhere) is the second pass worth its cost.
+        th = f.theta[cand]
+        rho = self._ridge_width(cand.size, th)
+        zero = np.zeros((1, cand.size))
+        m0 = pm.model(self._P[k : k + 1], zero, th, None, rho)[0]
+        m1 = pm.model(
+            self._P[k : k + 1] + self._dxy[k], zero, th, np.exp(self._lg[k : k + 1]), rho
+        )[0]
+        redo = cand[np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)]
+        if redo.size:
+            self._solve(redo, np.ones(redo.size, bool), max_iter=UPDATE_ITERATIONS)
         return self._current()
 
     def _current(self) -> Predictions:
@@ -681,13 +732,16 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     centres = 0.5 * (edges[:-1] + edges[1:] - 1)
     # Invalid cells sort last (+inf), so a low quantile ignores them while they are few.
     Un = np.where(valid, U, np.inf)
-    with np.errstate(all="ignore"):
-        q = np.stack(
-            [
-                np.percentile(Un[a:b], 20, axis=0, method="lower")
-                for a, b in zip(edges[:-1], edges[1:], strict=False)
-            ]
-        )
+    # All bins at once: pad each to the longest with +inf (sorts last), sort within bins,
+    # and take each bin's own "lower" 20th-percentile rank.
+    sizes = np.diff(edges)
+    nb, mx = sizes.size, int(sizes.max())
+    pos = np.arange(K) - np.repeat(edges[:-1], sizes)
+    padded = np.full((nb, mx, S), np.inf)
+    padded[np.repeat(np.arange(nb), sizes), pos] = Un
+    padded.sort(axis=1)
+    rank = np.floor(0.2 * (sizes - 1)).astype(int)
+    q = padded[np.arange(nb), rank]
     # Bins without any valid value borrow the sensor's overall level.
     overall = np.nanmedian(q, axis=0) if np.isfinite(q).any() else np.zeros(S)
     q = np.where(np.isfinite(q), q, np.where(np.isfinite(overall), overall, 0.0)[None, :])
@@ -783,13 +837,46 @@ def _predictions(loc: Localizer) -> Predictions:
         # Sensors on one wire see largely the same touches, so the part of their error that
         # comes from where those touches landed moves them together: pooling the wire's
         # crossings averages only their own parts; the shared part stays in the error bar.
-        shared = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
-        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, ok, floor, shared)
-        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, ok, floor, shared)
+        # How much they share is how many touches their fit windows have in common.
+        touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
+        inside = _window_members(loc, xy, w, h)
+        shared_x = touch_part * _mean_overlap(inside, tx, ok)
+        shared_y = touch_part * _mean_overlap(inside, rx, ok)
+        dx, dy = loc.design if loc.design is not None else (None, None)
+        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, ok, floor, shared_x, dx)
+        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, ok, floor, shared_y, dy)
         xy = np.column_stack([nx, ny])
         sd = np.where(ok, np.sqrt((vx + vy) / 2.0), sd)
     sigma = sd * R95_PER_AXIS_SD / 2.0
     return _build(loc, status, xy, sigma, snr, params)
+
+
+def _window_members(loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """(K, N) bool: the touches inside each sensor's fit window."""
+    s = loc.settings
+    radius = np.maximum(s.window_widths * w, s.window_spacings * h)
+    P = loc._P[: loc.n_logs] + loc._dxy[: loc.n_logs]
+    d = np.hypot(P[:, 0:1] - xy[None, :, 0], P[:, 1:2] - xy[None, :, 1])
+    return d <= radius[None, :]
+
+
+def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(N,) for each sensor, the mean fraction of touches it shares with its usable
+    wire-mates (|A and B| / sqrt(|A| |B|)); 1 where it has none (nothing to average)."""
+    n = inside.shape[1]
+    out = np.ones(n)
+    counts = inside.sum(axis=0).astype(float)
+    for g in np.unique(groups[groups >= 0]):
+        members = np.flatnonzero((groups == g) & usable)
+        if members.size < 2:
+            continue
+        A = inside[:, members].astype(float)
+        common = A.T @ A
+        norm = np.sqrt(np.outer(counts[members], counts[members]))
+        frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
+        np.fill_diagonal(frac, np.nan)
+        out[members] = np.nanmean(frac, axis=1)
+    return out
 
 
 def _rest_saturated(loc: Localizer, i: int) -> bool:
