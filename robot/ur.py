@@ -29,13 +29,13 @@ import logging
 import math
 import socket
 import struct
-import threading
 import time
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from robot.arm import ArmStatus, DwellCallback, DwellTick, TouchResult, TouchSpec
+from robot.supervise import call_with_timeout
 from varskin.errors import (
     ConnectionLost,
     ForceLimitExceeded,
@@ -199,23 +199,8 @@ class URArm:
     # --- the one door to ur-rtde ----------------------------------------------------------
 
     def _run(self, name: str, fn: Callable, timeout: float, *args):
-        """Run ``fn(*args)`` in a worker thread; raise ``RobotTimeout`` if it outlives ``timeout``."""
-        box: dict = {}
-
-        def work() -> None:
-            try:
-                box["value"] = fn(*args)
-            except BaseException as e:  # handed to the caller's thread
-                box["error"] = e
-
-        worker = threading.Thread(target=work, daemon=True, name=f"ur-{name}")
-        worker.start()
-        worker.join(timeout)
-        if worker.is_alive():
-            raise RobotTimeout(f"UR {self.host}: {name} did not return within {timeout:.1f} s")
-        if "error" in box:
-            raise box["error"]
-        return box.get("value")
+        """Run ``fn(*args)`` supervised; raise ``RobotTimeout`` if it outlives ``timeout``."""
+        return call_with_timeout(fn, args, timeout, f"UR {self.host}: {name}")
 
     def _call(
         self, name: str, fn: Callable, *args, timeout: float | None = None, check: bool = True

@@ -10,13 +10,13 @@ verb refuses: moving nothing is structural, not a matter of care.
 from __future__ import annotations
 
 import contextlib
-import threading
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from robot.arm import ArmStatus, DwellCallback, TouchResult, TouchSpec
-from varskin.errors import ConnectionLost, RobotError, RobotTimeout
+from robot.supervise import call_with_timeout
+from varskin.errors import ConnectionLost, RobotError
 
 STATUS_PROGRAM_RUNNING = 1 << 1  # robot_status_bits, UR RTDE guide
 # UR safety_mode values (RTDE guide); anything else is reported as "unknown"
@@ -68,28 +68,13 @@ class URReader:
         self.close()
 
     def _call(self, name: str, fn: Callable, *args):
-        """Run one ur-rtde call in a worker thread, bounded by ``call_timeout_s``."""
-        box: dict = {}
-
-        def work() -> None:
-            try:
-                box["value"] = fn(*args)
-            except BaseException as e:  # handed to the caller's thread
-                box["error"] = e
-
-        worker = threading.Thread(target=work, daemon=True, name=f"ur-read-{name}")
-        worker.start()
-        worker.join(self.call_timeout_s)
-        if worker.is_alive():
-            raise RobotTimeout(
-                f"UR {self.host}: {name} did not return within {self.call_timeout_s:.1f} s"
-            )
-        if "error" in box:
-            e = box["error"]
-            if isinstance(e, RuntimeError) and not isinstance(e, RobotError):
-                raise ConnectionLost(f"UR {self.host}: {name} failed: {e}") from e
-            raise e
-        return box.get("value")
+        """Run one ur-rtde call, bounded by ``call_timeout_s``."""
+        try:
+            return call_with_timeout(fn, args, self.call_timeout_s, f"UR {self.host}: {name}")
+        except RuntimeError as e:  # ur-rtde raises RuntimeError for socket failures
+            if isinstance(e, RobotError):
+                raise
+            raise ConnectionLost(f"UR {self.host}: {name} failed: {e}") from e
 
     def status(self) -> ArmStatus:
         recv = self._recv
