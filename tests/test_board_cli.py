@@ -6,6 +6,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -161,3 +162,35 @@ def test_board_sim_command_prints_a_device_path_that_records(tmp_path):
         proc.stdout.close()
         proc.stderr.close()
     assert not os.path.lexists(path)  # SIGTERM cleans up like Ctrl-C
+
+
+def test_killed_recording_keeps_what_it_had(tmp_path, patch_b):
+    """kill -9 mid-recording: the frames received up to about 0.25 s before are on disk."""
+    out = tmp_path / "frames.csv"
+    with SimBoard(patch_b, rate_hz=8, baud=None, seed=3) as board:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "varskin", "board", "record", "--port", board.path]
+            + ["--patch", "patch_b", "--seconds", "60", "-o", str(out)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        try:
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                if out.exists() and out.read_text().count("\n") >= 11:  # header + 10 frames
+                    break
+                time.sleep(0.05)
+            time.sleep(1.0)  # eight more frames arrive; at most 0.25 s of them may be unflushed
+            proc.kill()
+            proc.wait(10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    lines = out.read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [line.split(",") for line in lines[1:]]
+    complete = [r for r in rows if len(r) == len(header)]
+    assert len(complete) >= 10 + 5, len(complete)
+    # every complete row is a whole frame, in order
+    seqs = [int(r[1]) for r in complete]
+    assert seqs == list(range(len(complete)))
