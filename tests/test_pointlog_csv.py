@@ -283,6 +283,7 @@ def test_interleaved_touch_rows_and_blank_lines_are_fine(tmp_path):
         ("sensor,x_mm,y_mm\nS1,one,2\n", 2, 2),
         ("sensor,x,y_mm\nS1,1,2\n", 1, 2),
         ("", 1, 1),
+        ("sensor,x_mm,y_mm\n\n", 2, 1),
     ],
 )
 def test_bad_truth_names_line_and_column(tmp_path, text, line, column):

@@ -8,8 +8,6 @@ a status instead of breaking the evaluation.
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -18,6 +16,7 @@ import numpy as np
 
 from varskin.errors import InputError
 from varskin.predictions import OK, Predictions, SensorEstimate
+from varskin.table_csv import finite_cell, read_table
 
 PREDICTION_COLUMNS = ("sensor", "x_mm", "y_mm", "sigma_mm", "snr_db", "status")
 
@@ -123,52 +122,19 @@ def evaluate(predictions: Predictions, truth: dict[str, tuple[float, float]]) ->
 
 def read_predictions_csv(path: str | Path, method: str = "file") -> Predictions:
     """Read the ``sensor,x_mm,y_mm,sigma_mm,snr_db,status`` file that ``localize`` writes."""
-    name = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{name}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows or not any(c.strip() for c in rows[0]):
-        raise InputError(
-            f"{name}:1:1: empty file: expected a header {','.join(PREDICTION_COLUMNS)}"
-        )
-    header = [c.strip() for c in rows[0]]
-    for i, want in enumerate(PREDICTION_COLUMNS):
-        if i >= len(header) or header[i] != want:
-            found = repr(header[i]) if i < len(header) else "nothing"
-            raise InputError(
-                f"{name}:1:{i + 1}: header column {i + 1} must be {want!r}, found {found}"
-            )
     estimates = []
     names = set()
-    for ln, row in enumerate(rows[1:], start=2):
-        if not any(c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            col = min(len(row), len(header)) + 1
-            raise InputError(f"{name}:{ln}:{col}: {len(row)} fields, the header has {len(header)}")
-        sensor, status = row[0].strip(), row[5].strip()
+    for ln, row in read_table(path, PREDICTION_COLUMNS):
+        sensor, status = row[0], row[5]
         if not sensor or sensor in names:
-            raise InputError(f"{name}:{ln}:1: sensor name {sensor!r} is empty or repeated")
+            raise InputError(f"{path}:{ln}:1: sensor name {sensor!r} is empty or repeated")
         names.add(sensor)
-        nums = []
-        for col in range(1, 5):
-            cell = row[col].strip()
-            if not cell:
-                nums.append(None)
-                continue
-            try:
-                v = float(cell)
-            except ValueError:
-                v = float("nan")
-            if not math.isfinite(v):
-                raise InputError(
-                    f"{name}:{ln}:{col + 1}: {header[col]} must be a finite number or empty, found {cell!r}"
-                )
-            nums.append(v)
+        nums = [
+            finite_cell(path, ln, col, PREDICTION_COLUMNS[col], row[col], empty_ok=True)
+            for col in range(1, 5)
+        ]
         try:
             estimates.append(SensorEstimate(sensor, *nums, status=status or "missing"))
         except ValueError as e:
-            raise InputError(f"{name}:{ln}:6: {e}") from None
+            raise InputError(f"{path}:{ln}:6: {e}") from None
     return Predictions(method, estimates)

@@ -26,6 +26,7 @@ import numpy as np
 
 from varskin.errors import InputError, PointLogFormatError
 from varskin.pointlogs import PointLogs, average_samples
+from varskin.table_csv import finite_cell, read_table
 
 KEY_COLUMNS = ("touch", "x_mm", "y_mm")
 RESERVED_COLUMNS = ("t_s", "force_n")
@@ -366,50 +367,20 @@ def write_truth_csv(path: str | Path, sensors, xy_mm: np.ndarray) -> None:
 
 def read_truth_csv(path: str | Path) -> dict[str, tuple[float, float]]:
     """Read ``sensor,x_mm,y_mm`` into {sensor: (x, y)} in file order."""
-    name = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{name}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    rows = list(csv.reader(io.StringIO(text)))
-    if not rows or not any(c.strip() for c in rows[0]):
-        raise InputError(f"{name}:1:1: empty file: expected a header sensor,x_mm,y_mm")
-    header = [c.strip() for c in rows[0]]
-    for i, want in enumerate(("sensor", "x_mm", "y_mm")):
-        if i >= len(header) or header[i] != want:
-            found = repr(header[i]) if i < len(header) else "nothing"
-            raise InputError(
-                f"{name}:1:{i + 1}: header column {i + 1} must be {want!r}, found {found}"
-            )
+    columns = ("sensor", "x_mm", "y_mm")
     truth: dict[str, tuple[float, float]] = {}
     first_line: dict[str, int] = {}
-    for ln, row in enumerate(rows[1:], start=2):
-        if not any(c.strip() for c in row):
-            continue
-        if len(row) != len(header):
-            col = min(len(row), len(header)) + 1
-            raise InputError(f"{name}:{ln}:{col}: {len(row)} fields, the header has {len(header)}")
-        sensor = row[0].strip()
+    for ln, row in read_table(path, columns):
+        sensor = row[0]
         if not sensor:
-            raise InputError(f"{name}:{ln}:1: empty sensor name")
+            raise InputError(f"{path}:{ln}:1: empty sensor name")
         if sensor in truth:
             raise InputError(
-                f"{name}:{ln}:1: sensor {sensor!r} repeated (first on line {first_line[sensor]})"
+                f"{path}:{ln}:1: sensor {sensor!r} repeated (first on line {first_line[sensor]})"
             )
-        xy = []
-        for col in (1, 2):
-            cell = row[col].strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                v = float("nan")
-            if not np.isfinite(v):
-                raise InputError(
-                    f"{name}:{ln}:{col + 1}: {header[col]} must be a finite number, found {cell!r}"
-                )
-            xy.append(v)
-        truth[sensor] = (xy[0], xy[1])
+        x, y = (finite_cell(path, ln, col, columns[col], row[col]) for col in (1, 2))
+        truth[sensor] = (x, y)
         first_line[sensor] = ln
     if not truth:
-        raise InputError(f"{name}:2:1: no sensors after the header")
+        raise InputError(f"{path}:2:1: no sensors after the header")
     return truth
