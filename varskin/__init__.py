@@ -23,8 +23,8 @@ __all__ = [
 ]
 
 
-def read_point_logs(path, **kwargs) -> PointLogs:
-    """Read a point-log CSV (see ``varskin.pointlog_csv``)."""
+def read_point_logs(path) -> PointLogs:
+    """Read a point-log CSV (the format is described in ``varskin.pointlog_csv``)."""
     from varskin.pointlog_csv import read_point_logs as _read
 
-    return _read(path, **kwargs)
+    return _read(path)
