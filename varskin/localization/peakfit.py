@@ -62,6 +62,10 @@ UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_
 # centroid fallback was tried and rejected: on such maps its error is unbounded.
 IRREGULAR = "irregular"
 WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
+# Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
+# units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
+# 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
+HULL_PRIOR = 1.5
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
@@ -751,21 +755,52 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
 
 
-def _hull_distance(P: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Signed distance (mm, >0 outside) of each xy from the probes' convex hull; collinear?"""
+def _hull_distance(P: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Signed distance (mm, >0 outside) of each xy from the probes' convex hull, the unit
+    outward normal of the hull edge that distance is measured to, and collinear?"""
     pts = np.unique(P, axis=0)
+    nan_n = np.full((len(xy), 2), np.nan)
     if len(pts) < 3:
-        return np.full(len(xy), np.inf), True
+        return np.full(len(xy), np.inf), nan_n, True
     c = pts - pts.mean(axis=0)
     sv = np.linalg.svd(c, compute_uv=False)
     # Probes on (nearly) one line cannot tell the two sides of that line apart.
     if sv[1] / math.sqrt(len(pts)) < 0.25:
-        return np.full(len(xy), np.inf), True
+        return np.full(len(xy), np.inf), nan_n, True
     from scipy.spatial import ConvexHull
 
     hull = ConvexHull(pts)
     eq = hull.equations  # n.x + c <= 0 inside, n unit length
-    return (xy @ eq[:, :2].T + eq[:, 2]).max(axis=1), False
+    with np.errstate(invalid="ignore"):
+        d = xy @ eq[:, :2].T + eq[:, 2]
+    j = np.argmax(np.where(np.isfinite(d), d, -np.inf), axis=1)
+    return d.max(axis=1), eq[j, :2], False
+
+
+def _pull_into_hull(
+    xy: np.ndarray, cov: np.ndarray, dist_out: np.ndarray, normal: np.ndarray, margin: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Soft prior that a peak fitted beyond the probes' hull lies near the hull's edge.
+
+    A sensor just past the last probe column shows only the inner flank of its bump, so the
+    fit can slide its peak outwards almost freely (Patch B's last TX wire: 0.5 mm beyond the
+    probes, fitted 4-7 mm beyond with a 5-13 mm sd). The prior is Gaussian in the distance
+    beyond the hull, centred on the edge with sd ``margin`` (footprint-scaled), combined
+    with the fit's own variance along the edge's normal; inside the hull it does nothing.
+    Returns the new xy, the per-axis variance and the fit's own sd along the normal.
+    """
+    with np.errstate(invalid="ignore"):
+        s2n = np.einsum("ni,nij,nj->n", normal, cov, normal)
+    trace = np.trace(cov, axis1=1, axis2=2)
+    use = np.isfinite(dist_out) & (dist_out > 0) & np.isfinite(s2n) & (s2n >= 0)
+    s2n = np.where(use, s2n, 0.0)
+    m2 = margin**2
+    keep = m2 / (m2 + s2n)  # the fraction of the outward distance the data keep
+    shift = np.where(use, dist_out * (1.0 - keep), 0.0)
+    xy = xy - np.where(use[:, None], normal, 0.0) * shift[:, None]
+    post = s2n * keep
+    var = np.maximum((trace - s2n + post) / 2.0, 0.0)
+    return xy, var, np.sqrt(s2n)
 
 
 def _predictions(loc: Localizer) -> Predictions:
@@ -782,10 +817,16 @@ def _predictions(loc: Localizer) -> Predictions:
         return _build(loc, status, np.zeros((n, 2)), np.zeros(n), snr, params)
     th = f.theta
     xy = th[:, :2].copy()
-    var = np.maximum(np.trace(f.cov_xy, axis1=1, axis2=2) / 2.0, 0.0)
     h = loc.spacing()
     w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
-    dist_out, collinear = _hull_distance(P, xy)
+    margin = np.maximum(0.5 * h, 0.5 * w)
+    dist_out, normal, collinear = _hull_distance(P, xy)
+    # Judged on the fit itself: beyond the hull by more than the margin AND by more than
+    # 1.5 sd of the fit along the edge's normal. A one-sided fit that merely ran away (its
+    # sd along the normal dwarfs the distance) is not evidence of a peak outside; the hull
+    # prior then brings it back to where the data put it, with the sigma that implies.
+    xy, var, sd_out = _pull_into_hull(xy, f.cov_xy, dist_out, normal, HULL_PRIOR * margin)
+    outside = (dist_out > margin) & (dist_out > 1.5 * sd_out)
     finite = np.isfinite(th).all(axis=1) & np.isfinite(var)
     valid_counts = np.isfinite(loc._V[:K]).sum(axis=0)
     snr_fit = th[:, pm.AMP] / np.maximum(f.noise, 1e-12)
@@ -804,7 +845,6 @@ def _predictions(loc: Localizer) -> Predictions:
         & (w > 0.1 * h)
         & (w < 20.0 * h)
     )
-    margin = np.maximum(0.5 * h, 0.5 * w)
     for i in range(n):
         if not f.fitted[i] or valid_counts[i] < 3:
             status[i] = SPARSE
@@ -814,7 +854,7 @@ def _predictions(loc: Localizer) -> Predictions:
             status[i] = COLLINEAR
         elif not finite[i] or snr_fit[i] < loc.params["min_snr"] or th[i, pm.AMP] <= 0:
             status[i] = DEAD
-        elif dist_out[i] > margin[i]:
+        elif outside[i]:
             status[i] = OUTSIDE
         elif not sane[i]:
             status[i] = IRREGULAR
@@ -831,6 +871,9 @@ def _predictions(loc: Localizer) -> Predictions:
         weak = ok & (raw_amp < ref)
         status[weak] = WEAK
     ok = status == OK
+    # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
+    # only one flank seen) but passed every other check may be placed by its wires.
+    loose = status == UNCERTAIN
     if loc.groups is not None and loc.params["layout_prior"] and ok.sum() >= 2:
         tx, rx = loc.groups
         floor = float(loc.params["wire_scatter_mm"])
@@ -840,13 +883,19 @@ def _predictions(loc: Localizer) -> Predictions:
         # How much they share is how many touches their fit windows have in common.
         touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
         inside = _window_members(loc, xy, w, h)
-        shared_x = touch_part * _mean_overlap(inside, tx, ok)
-        shared_y = touch_part * _mean_overlap(inside, rx, ok)
+        use = ok | loose  # a loose sensor informs its wire's line only with its own weight
+        shared_x = touch_part * _mean_overlap(inside, tx, use)
+        shared_y = touch_part * _mean_overlap(inside, rx, use)
         dx, dy = loc.design if loc.design is not None else (None, None)
-        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, ok, floor, shared_x, dx)
-        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, ok, floor, shared_y, dy)
+        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, use, floor, shared_x, dx)
+        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, use, floor, shared_y, dy)
         xy = np.column_stack([nx, ny])
-        sd = np.where(ok, np.sqrt((vx + vy) / 2.0), sd)
+        sd = np.where(use, np.sqrt((vx + vy) / 2.0), sd)
+        # Judged again after the prior: placed within max_sigma_mm and not weak, it is ok.
+        placed = loose & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
+        if ok.sum() >= 3:
+            placed &= raw_amp >= WEAK_FRACTION * np.median(raw_amp[ok])
+        status[placed] = OK
     sigma = sd * R95_PER_AXIS_SD / 2.0
     return _build(loc, status, xy, sigma, snr, params)
 
