@@ -17,30 +17,35 @@ def rms(e):
     return float(np.sqrt((e**2).sum() / (len(e) - 1)))
 
 
-for pname in ("patch_a", "patch_b"):
-    p = builtin_patch(pname)
-    for probe in ("robot", "finger"):
-        for prior in (False, True):
-            r = []
-            ratio = []
-            mx = []
-            over2 = 0
-            for seed in range(300, 360):
-                s = simulate_session(p, uniform_grid(p, 20, 5), probe, seed)
-                L = s.point_logs()
-                pr = localize(L, **({"patch": p} if prior else {}))
-                e = np.linalg.norm(pr.xy() - s.truth, axis=1)
-                e = e[np.isfinite(e)]
-                r.append(rms(e))
-                mx.append(e.max())
-                over2 += int(e.max() > 2)
-                if probe == "finger":
-                    pp = localize(L, method="paper", ppcm=16)
-                    ep = np.linalg.norm(pp.xy() - s.truth, axis=1)
-                    ep = ep[np.isfinite(ep)]
-                    ratio.append(rms(e) / rms(ep))
-            r = np.array(r)
-            line = f"{pname} {probe:6s} prior={int(prior)} seeds 300-359: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/60; seeds with a sensor >2mm: {over2}/60"
-            if ratio:
-                line += f"; RMS/paper(ppcm16) median {np.median(ratio):.2f} worst {max(ratio):.2f}; seeds <=0.6: {(np.array(ratio) <= 0.6).sum()}/60"
-            print(line, flush=True)
+def main() -> None:
+    for pname in ("patch_a", "patch_b"):
+        p = builtin_patch(pname)
+        for probe in ("robot", "finger"):
+            for prior in (False, True):
+                r = []
+                ratio = []
+                mx = []
+                over2 = 0
+                for seed in range(300, 360):
+                    s = simulate_session(p, uniform_grid(p, 20, 5), probe, seed)
+                    L = s.point_logs()
+                    pr = localize(L, **({"patch": p} if prior else {}))
+                    e = np.linalg.norm(pr.xy() - s.truth, axis=1)
+                    e = e[np.isfinite(e)]
+                    r.append(rms(e))
+                    mx.append(e.max())
+                    over2 += int(e.max() > 2)
+                    if probe == "finger":
+                        pp = localize(L, method="paper", ppcm=16)
+                        ep = np.linalg.norm(pp.xy() - s.truth, axis=1)
+                        ep = ep[np.isfinite(ep)]
+                        ratio.append(rms(e) / rms(ep))
+                r = np.array(r)
+                line = f"{pname} {probe:6s} prior={int(prior)} seeds 300-359: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/60; seeds with a sensor >2mm: {over2}/60"
+                if ratio:
+                    line += f"; RMS/paper(ppcm16) median {np.median(ratio):.2f} worst {max(ratio):.2f}; seeds <=0.6: {(np.array(ratio) <= 0.6).sum()}/60"
+                print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()
