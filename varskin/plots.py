@@ -77,9 +77,8 @@ def plot_point_log_map(
     ax.set_title(f"{sensor}: a) point log map ({len(locations)} probe locations)")
     fig.colorbar(sc, ax=ax, label="counts above rest")
 
-    ax = axes[1]
-    im = ax.imshow(
-        image,
+    # Both pixel panels share one colour scale, so the threshold step reads against the map.
+    pixels = dict(
         origin="lower",
         extent=extent,
         cmap="viridis",
@@ -88,6 +87,8 @@ def plot_point_log_map(
         aspect="equal",
         interpolation="nearest",
     )
+    ax = axes[1]
+    im = ax.imshow(image, **pixels)
     ax.set_title(
         f"b) piecewise cubic interpolation, {ppcm:g} pixels/cm (blank: outside the probes' hull)"
     )
@@ -97,16 +98,7 @@ def plot_point_log_map(
     peak = np.nanmax(image) if np.isfinite(image).any() else np.nan
     with np.errstate(invalid="ignore"):
         kept = np.where(image > eta * peak, image, np.nan)
-    im = ax.imshow(
-        kept,
-        origin="lower",
-        extent=extent,
-        cmap="viridis",
-        vmin=vmin,
-        vmax=vmax,
-        aspect="equal",
-        interpolation="nearest",
-    )
+    im = ax.imshow(kept, **pixels)
     title = f"c) pixels above {eta:g} x max, averaged"
     if status == OK:
         ax.plot([x], [y], "rx", ms=10, mew=2, label=f"prediction ({x:.2f}, {y:.2f})")
