@@ -109,18 +109,8 @@ def _design_prior(coord, var, groups, usable, design, floor_mm: float) -> dict:
     if len(gids) < 3:
         return {}
     level, level_var, dz = np.array(level), np.array(level_var), np.array(dz)
-    X = (
-        np.column_stack([np.ones_like(dz), dz - dz.mean()])
-        if dz.size >= 5
-        else np.ones((dz.size, 1))
-    )
-    s2 = floor_mm**2
-    for _ in range(6):
-        w = 1.0 / (level_var + s2)
-        beta = np.linalg.lstsq(X * np.sqrt(w)[:, None], level * np.sqrt(w), rcond=None)[0]
-        resid = level - X @ beta
-        dof = max(dz.size - X.shape[1], 1)
-        s2 = max(floor_mm**2, float((resid**2).sum() / dof - level_var.mean()))
+    X = _design(dz)
+    s2 = _scatter(level, level_var, X, floor_mm, iterations=6)
     # Each wire's prior comes from the map fitted to the other wires (its own crossings
     # must not vouch for themselves), plus that map's own uncertainty at the wire.
     w = 1.0 / (level_var + s2)
@@ -141,12 +131,13 @@ def _design(t: np.ndarray) -> np.ndarray:
     return np.ones((t.size, 1))
 
 
-def _scatter(c, v, X, floor_mm: float) -> float:
-    """Empirical-Bayes scatter of the crossings around their wire's line, >= the floor."""
+def _scatter(c, v, X, floor_mm: float, iterations: int = 4) -> float:
+    """Empirical-Bayes scatter of values ``c`` (variances ``v``) around the fit ``X``,
+    >= the floor: the crossings around their wire's line, or the wires around the design."""
     tau2 = floor_mm**2
     if c.size <= X.shape[1]:
         return tau2
-    for _ in range(4):
+    for _ in range(iterations):
         w = 1.0 / (v + tau2)
         beta = np.linalg.lstsq(X * np.sqrt(w)[:, None], c * np.sqrt(w), rcond=None)[0]
         resid = c - X @ beta
