@@ -189,3 +189,67 @@ def plot_predictions(
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
     ax.autoscale_view()
     return _save(fig, path)
+
+
+def plot_point_log_maps(
+    logs: PointLogs,
+    path: str | Path,
+    predictions: Predictions | None = None,
+    outline_mm: tuple[float, float] | None = None,
+    columns: int = 5,
+) -> Path:
+    """Every sensor's point log map at a glance: probe points coloured by its response,
+    with its estimate marked; a sensor whose map has no peak stands out at once."""
+    n = logs.n_sensors
+    rows = max(1, -(-n // columns))
+    fig = Figure(figsize=(3.2 * columns, 1.5 * rows + 0.6), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(rows, columns, sharex=True, sharey=True)).ravel()
+    est = predictions.by_name() if predictions is not None else {}
+    for j, ax in enumerate(axes):
+        if j >= n:
+            ax.set_axis_off()
+            continue
+        name = logs.sensors[j]
+        col = logs.values[:, j]
+        ax.scatter(logs.xy_mm[:, 0], logs.xy_mm[:, 1], c=col, s=10, cmap="viridis", marker="s")
+        e = est.get(name)
+        if e is not None and e.status == OK:
+            ax.plot([e.x_mm], [e.y_mm], "r+", ms=8)
+        label = name if e is None or e.status == OK else f"{name} ({e.status})"
+        ax.set_title(label, fontsize=8)
+        if outline_mm is not None:
+            ax.set_xlim(0, outline_mm[0])
+            ax.set_ylim(0, outline_mm[1])
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6)
+    fig.suptitle(f"point log maps ({len(logs)} touches); + = estimate", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_uncertainty_vs_touches(
+    n_logs: np.ndarray,
+    sigma_median: np.ndarray,
+    sigma_max: np.ndarray,
+    located: np.ndarray,
+    n_sensors: int,
+    path: str | Path,
+    rms_mm: np.ndarray | None = None,
+) -> Path:
+    """How the live estimate converged: sigma (median, worst) and sensors located per touch."""
+    fig = Figure(figsize=(8, 4), layout="constrained")
+    ax = fig.subplots()
+    ax.plot(n_logs, sigma_median, "-", label="median sigma")
+    ax.plot(n_logs, sigma_max, "-", label="largest sigma")
+    if rms_mm is not None:
+        ax.plot(n_logs, rms_mm, "k--", lw=1, label="RMS error vs truth (simulated rig)")
+    ax.set_yscale("log")
+    ax.set_xlabel("point logs")
+    ax.set_ylabel("mm")
+    ax.grid(True, which="both", alpha=0.3)
+    ax2 = ax.twinx()
+    ax2.step(n_logs, located, where="post", color="tab:green", alpha=0.6, label="located")
+    ax2.set_ylim(0, n_sensors + 1)
+    ax2.set_ylabel("sensors located", color="tab:green")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.set_title("live estimate versus touches")
+    return _save(fig, path)

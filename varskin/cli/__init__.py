@@ -13,7 +13,18 @@ import sys
 
 from varskin.errors import VarskinError
 
-COMMAND_MODULES = ("demo", "simulate", "localize", "evaluate", "bench", "board", "robot")
+COMMAND_MODULES = (
+    "calibrate",
+    "replay",
+    "export",
+    "demo",
+    "simulate",
+    "localize",
+    "evaluate",
+    "bench",
+    "board",
+    "robot",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,147 @@
+"""The session store: a real SQLite file, bit-exact round trips, no duplicate point logs,
+and nothing half-written after a killed process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from varskin.board.frame import Frame, Gap
+from varskin.errors import StoreError
+from varskin.pointlogs import PointLog
+from varskin.predictions import Predictions, SensorEstimate
+from varskin.store import Attempt, Outcome, SessionStore, StoredLog
+
+SENSORS = ["S1", "S2", "S3"]
+
+
+def _store(tmp_path):
+    return SessionStore.create(tmp_path / "s.db", {"sensors": SENSORS, "method": "peakfit"})
+
+
+def _log(i: int, rng) -> PointLog:
+    return PointLog(i, 1.0 + i, 2.0, rng.normal(0, 50, 3), 8, rng.random(3), 0.1 * i, 2.0)
+
+
+def _preds(x: float) -> Predictions:
+    return Predictions(
+        "peakfit",
+        [
+            SensorEstimate("S1", x, 1.0, 0.1, 20.0),
+            SensorEstimate("S2", None, None, None, None, "sparse"),
+            SensorEstimate("S3", 3.0, x / 3, 0.2, None),
+        ],
+    )
+
+
+def _touch(store: SessionStore, i: int, rng, ok: bool = True) -> PointLog:
+    log = _log(i, rng)
+    aid = store.add_attempt(Attempt(i, 1, log.x_mm, log.y_mm, "uniform", "ok" if ok else "no_contact"))
+    store.commit_touch(
+        Outcome(i, log.x_mm, log.y_mm, "uniform", ok),
+        StoredLog(i, aid, 5, log) if ok else None,
+        _preds(0.1 * i + 1 / 3) if ok else None,
+    )
+    return log
+
+
+def test_round_trip_is_bit_exact(tmp_path):
+    rng = np.random.default_rng(0)
+    store = _store(tmp_path)
+    cells = rng.integers(0, 65536, (21, 12)).astype(np.uint16)
+    store.add_frames([Frame(0, 12.5, cells), Frame(1, 12.625, cells[::-1].copy())])
+    store.add_gaps([Gap(13.0, 14.5, "unplugged", 12.625)])
+    store.write_baseline(SENSORS, np.array([9000.5, 8000.25, 7000.0]), np.array([4.0, 5.0, 6.0]), 50)
+    logs = [_touch(store, i, rng) for i in range(3)]
+    store.close()
+
+    again = SessionStore.open(tmp_path / "s.db")
+    frames = list(again.frames())
+    assert [f.seq for f in frames] == [0, 1]
+    assert np.array_equal(frames[0].cells, cells) and frames[0].t == 12.5
+    assert again.gaps()[0].reason == "unplugged"
+    stored = again.stored_logs()
+    for s, g in zip(stored, logs, strict=True):
+        assert np.array_equal(s.log.values, g.values)  # exact, not approximately
+        assert np.array_equal(s.log.sample_sd, g.sample_sd)
+        assert s.n_baseline == 5
+    pl = again.point_logs()
+    assert pl.rest.tolist() == [9000.5, 8000.25, 7000.0]
+    live = again.estimates("live")
+    assert sorted(live) == [1, 2, 3]
+    assert live[3].estimates[0].x_mm == 0.2 + 1 / 3  # float64 survives SQLite REAL
+    assert live[3].estimates[1].status == "sparse" and live[3].estimates[1].x_mm is None
+    assert again.meta()["sensors"] == SENSORS
+
+
+def test_a_plan_index_is_stored_once(tmp_path):
+    rng = np.random.default_rng(1)
+    store = _store(tmp_path)
+    _touch(store, 0, rng)
+    with pytest.raises(StoreError, match="already stored"):
+        _touch(store, 0, rng)
+    # the failed commit rolled back its own rows and left the first one intact
+    assert store.n_point_logs() == 1
+    assert len(store.attempts()) == 1
+
+
+def test_failed_touch_has_outcome_but_no_log(tmp_path):
+    rng = np.random.default_rng(2)
+    store = _store(tmp_path)
+    _touch(store, 0, rng, ok=False)
+    _touch(store, 1, rng)
+    assert [o.ok for o in store.outcomes()] == [False, True]
+    assert [s.plan_index for s in store.stored_logs()] == [1]
+
+
+def test_create_refuses_existing_and_open_refuses_garbage(tmp_path):
+    _store(tmp_path).close()
+    with pytest.raises(StoreError, match="already exists"):
+        _store(tmp_path)
+    junk = tmp_path / "junk.db"
+    junk.write_text("not sqlite at all\n" * 100)
+    with pytest.raises(StoreError, match="not a varskin session"):
+        SessionStore.open(junk)
+    with pytest.raises(StoreError, match="no such session"):
+        SessionStore.open(tmp_path / "missing.db")
+    other = tmp_path / "other.db"
+    sqlite3.connect(other).execute("CREATE TABLE t (a)").connection.commit()
+    with pytest.raises(StoreError, match="not a varskin session"):
+        SessionStore.open(other)
+
+
+def test_killed_writer_leaves_only_committed_touches(tmp_path):
+    """A process killed with SIGKILL in the middle of a touch: the file opens, holds every
+    committed touch, and nothing of the one in flight."""
+    path = tmp_path / "k.db"
+    script = textwrap.dedent(
+        f"""
+        import os, signal, numpy as np
+        from varskin.board.frame import Frame
+        from varskin.pointlogs import PointLog
+        from varskin.store import Attempt, Outcome, SessionStore, StoredLog
+        s = SessionStore.create({str(path)!r}, {{"sensors": ["S1", "S2", "S3"]}})
+        for i in range(4):
+            s.add_frames([Frame(i, float(i), np.full((21, 12), i, np.uint16))])
+            aid = s.add_attempt(Attempt(i, 1, 1.0, 2.0, "uniform", "ok"))
+            if i == 3:
+                os.kill(os.getpid(), signal.SIGKILL)  # mid-touch: attempt and frame not committed
+            log = PointLog(i, 1.0, 2.0, np.arange(3.0) + i, 8, np.ones(3), float(i), 2.0)
+            s.commit_touch(Outcome(i, 1.0, 2.0, "uniform", True), StoredLog(i, aid, 4, log), None)
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, timeout=60)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()
+    assert os.path.exists(str(path) + "-wal")  # WAL mode: the log was never checkpointed
+    store = SessionStore.open(path)
+    assert [s.plan_index for s in store.stored_logs()] == [0, 1, 2]
+    assert store.n_frames() == 3
+    assert len(store.attempts()) == 3
+    assert np.array_equal(store.stored_logs()[2].log.values, [2.0, 3.0, 4.0])

@@ -1,0 +1,259 @@
+"""``varskin calibrate [LAUNCH.yaml]``: the whole unattended calibration of a patch.
+
+With no argument it runs ``launch/sim.yaml``: the simulated UR controller driven by the real
+ur-rtde client and the simulated Muca board read through a pseudo-terminal by the real
+recorder, so the default run exercises every part a real rig uses. ``--resume SESSION.db``
+carries on a session that stopped (a crash, a kill, a board that never came back) from its
+first missing touch. A real rig is only driven with ``--real``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+import time
+from pathlib import Path
+
+from robot.launch import LaunchConfig, load_launch
+from varskin.errors import InputError, StoreError
+from varskin.localization import DEFAULT_METHOD, METHODS
+from varskin.patch import config_dir
+
+DEFAULT_LAUNCH = config_dir().parent / "launch" / "sim.yaml"
+PLANNERS = ("uniform", "adaptive")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="run a calibration session (default: the simulated rig of launch/sim.yaml)",
+        description=(
+            "Touch the patch on a plan, record the Muca board in sync, localize every sensor "
+            "live, store everything in one SQLite session file and write a report. Without "
+            "LAUNCH.yaml it runs launch/sim.yaml (simulated UR controller + simulated board)."
+        ),
+    )
+    p.add_argument(
+        "launch",
+        nargs="?",
+        metavar="LAUNCH.yaml",
+        help=f"the rig's launch file (default: {DEFAULT_LAUNCH.relative_to(config_dir().parent)})",
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        metavar="SESSION.db",
+        help="session file to create (default: sessions/<patch>-<date>-<time>.db); the report "
+        "goes to a folder of the same name without .db",
+    )
+    p.add_argument(
+        "--resume",
+        metavar="SESSION.db",
+        help="continue this stopped session (its launch file must be unchanged)",
+    )
+    p.add_argument(
+        "--planner",
+        choices=PLANNERS,
+        help="uniform: the launch's grid (default 20x5, as in the paper); adaptive: a coarse "
+        "pass, then each touch where it shrinks the sensors' uncertainty most "
+        "(default: the launch's plan.mode, else uniform)",
+    )
+    p.add_argument(
+        "--budget",
+        type=int,
+        metavar="N",
+        help="adaptive planner: most touches in all (default: the launch's plan.budget, else 100)",
+    )
+    p.add_argument(
+        "--target-sigma",
+        type=float,
+        metavar="MM",
+        help="adaptive planner: stop once every sensor's sigma is below this, mm "
+        "(default: the launch's plan.target_sigma_mm)",
+    )
+    p.add_argument(
+        "--method",
+        choices=list(METHODS),
+        help=f"localization method of the final estimate (default: {DEFAULT_METHOD})",
+    )
+    p.add_argument(
+        "--max-retries",
+        type=int,
+        default=2,
+        metavar="N",
+        help="extra attempts of a touch without contact or with a board gap (default: 2)",
+    )
+    p.add_argument(
+        "--real",
+        action="store_true",
+        help="required to drive a REAL robot (a launch file with simulated: false)",
+    )
+    p.set_defaults(func=run)
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _patch_text(launch_path: Path) -> str:
+    """The patch YAML the launch names, kept in the session so replay needs no checkout."""
+    import yaml
+
+    rel = Path(str(yaml.safe_load(launch_path.read_text())["patch"]))
+    return (rel if rel.is_absolute() else launch_path.parent / rel).read_text()
+
+
+def _default_output(launch: LaunchConfig) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return Path("sessions") / f"{launch.patch.name}-{stamp}.db"
+
+
+def make_planner(launch: LaunchConfig, settings: dict):
+    """The plan generator a session's stored settings describe (the same on resume)."""
+    from varskin.planning import AdaptivePlanner, UniformPlanner
+
+    if settings["planner"] == "adaptive":
+        kwargs = {"budget": settings["budget"], "margin_mm": launch.plan.margin_mm}
+        if settings.get("target_sigma_mm") is not None:
+            kwargs["target_sigma_mm"] = settings["target_sigma_mm"]
+        return AdaptivePlanner(launch.patch, **kwargs).plan()
+    return UniformPlanner(
+        launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm
+    ).plan()
+
+
+def run(args: argparse.Namespace) -> int:
+    from varskin.live_view import LiveView
+    from varskin.rig import open_rig
+    from varskin.session import CalibrationSession, SessionSettings
+    from varskin.store import SessionStore
+    from varskin.touch_window import WindowConfig
+
+    if args.max_retries < 0:
+        raise InputError("--max-retries must be >= 0")
+    if args.resume:
+        if args.launch or args.output or args.planner or args.budget or args.target_sigma:
+            raise InputError(
+                "--resume takes its launch file and plan from the session; give no other plan options"
+            )
+        store = SessionStore.open(args.resume)
+        meta = store.meta()
+        launch_path = Path(str(meta["launch_path"]))
+        if not launch_path.is_file():
+            raise StoreError(f"{args.resume}: its launch file {launch_path} is gone")
+        if _sha256(launch_path) != meta["launch_sha256"]:
+            raise StoreError(
+                f"{args.resume}: launch file {launch_path} changed since the session started"
+            )
+        launch = load_launch(launch_path)
+        plan_settings = dict(meta["plan"])  # type: ignore[arg-type]
+        method = args.method or str(meta["method"])
+        out_path = Path(args.resume)
+    else:
+        launch_path = Path(args.launch) if args.launch else DEFAULT_LAUNCH
+        launch = load_launch(launch_path)  # every config mistake surfaces before anything moves
+        plan_settings = {
+            "planner": args.planner or launch.plan.mode,
+            "budget": args.budget if args.budget is not None else launch.plan.budget,
+            "target_sigma_mm": args.target_sigma
+            if args.target_sigma is not None
+            else launch.plan.target_sigma_mm,
+        }
+        if plan_settings["budget"] < 1:
+            raise InputError("--budget must be >= 1")
+        method = args.method or DEFAULT_METHOD
+        out_path = Path(args.output) if args.output else _default_output(launch)
+        if out_path.exists():
+            raise StoreError(f"{out_path}: already exists; use --resume {out_path} to continue it")
+        store = None
+    _check_plan_safe(launch, plan_settings)
+    if not launch.simulated and not args.real:
+        raise InputError(
+            f"{launch.source}: drives a REAL robot; pass --real once the workspace is clear"
+        )
+    window = WindowConfig()
+    settings = SessionSettings(method=method, max_retries=args.max_retries, window=window)
+    print(
+        f"launch: {launch.source} ({'simulated rig' if launch.simulated else 'REAL robot ' + launch.robot.host}), "
+        f"patch {launch.patch.name}, planner {plan_settings['planner']}, session {out_path}",
+        file=sys.stderr,
+    )
+    with open_rig(launch, allow_real=args.real) as rig:
+        if store is None:
+            store = SessionStore.create(
+                out_path,
+                {
+                    "launch_path": str(launch_path.resolve()),
+                    "launch_sha256": _sha256(launch_path),
+                    "patch": launch.patch.name,
+                    "patch_yaml": _patch_text(launch_path),
+                    "sensors": list(launch.patch.names),
+                    "plan": plan_settings,
+                    "method": method,
+                    "simulated": launch.simulated,
+                    "time_scale": rig.time_scale,
+                    "truth_xy": rig.truth_xy.tolist() if rig.truth_xy is not None else None,
+                    "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                    "status": "running",
+                },
+            )
+        try:
+            planner = make_planner(launch, plan_settings)
+            total = _plan_length(launch, plan_settings)
+            session = CalibrationSession(rig, store, planner, settings, on_event=LiveView(total))
+            result = session.run()
+            _finish(store, result, launch, rig, out_path)
+        finally:
+            store.close()
+    return 0
+
+
+def _plan_length(launch: LaunchConfig, plan: dict) -> int:
+    if plan["planner"] == "adaptive":
+        return int(plan["budget"])
+    return launch.plan.nx * launch.plan.ny
+
+
+def _check_plan_safe(launch: LaunchConfig, plan: dict) -> None:
+    """Refuse, before anything moves, a plan that could leave the envelope: the uniform grid
+    itself, or for the adaptive planner the corners and edges of the area it may choose from."""
+    from varskin.planning import uniform_points
+
+    if plan["planner"] == "adaptive":
+        pts = uniform_points(launch.patch, 9, 5, launch.plan.margin_mm)
+    else:
+        pts = uniform_points(launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm)
+    launch.envelope.check_touch_plan(launch.frame.to_base(pts), launch.touch)
+
+
+def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
+    from robot.rig_time import estimate_plan_time
+    from varskin.report import write_report
+    from varskin.session import rms_error_mm
+
+    report_dir = out_path.with_suffix("")
+    truth = rig.truth_xy
+    files = write_report(report_dir, store, result.predictions, launch.patch, truth)
+    est = estimate_plan_time(rig.to_base(result.touch_points_mm), launch.touch, launch.envelope)
+    lines = [
+        f"touches: {result.n_planned} planned, {len(result.logs)} point logs, "
+        f"{result.n_failed} failed, {result.n_attempts} attempts",
+        f"time: {result.wall_s:.1f} s wall here"
+        + (f" (simulated clock x{rig.time_scale:g})" if rig.time_scale != 1 else "")
+        + f"; the same plan on a real rig: about {est.total_s / 60:.1f} min "
+        f"(motion and dwell model: travel {est.travel_s:.0f} s, descent {est.descent_s:.0f} s, "
+        f"hold {est.hold_s:.0f} s, retract {est.retract_s:.0f} s)",
+    ]
+    located = sum(e.status == "ok" for e in result.predictions.estimates)
+    if truth is not None and located:
+        rms, n = rms_error_mm(result.predictions, truth)
+        lines.append(
+            f"error vs the simulated rig's hidden layout: RMS {rms:.3f} mm over {n} located sensors"
+        )
+    lines.append(f"located {located}/{len(result.predictions.estimates)} sensors")
+    lines.append(f"session: {out_path}; report: {files.predictions_csv.parent}/")
+    for line in lines:
+        print(line)
+    store.set_meta("rig_time_estimate_s", est.total_s)
+    store.set_meta("wall_s", result.wall_s)

@@ -1,0 +1,396 @@
+"""One SQLite file per calibration session, written so that a crash loses nothing.
+
+A session runs unattended for many minutes on hardware that can fail at any moment (a
+knocked cable, a protective stop, a killed process). Everything it learns goes into one
+file: the launch and patch it ran with, every raw frame and link gap the recorder saw, every
+touch attempt, the point logs cut from them and the estimates after each. The file is in WAL
+mode and every touch is committed as one transaction (its frames, its attempt records, its
+point log and the live estimates after it), so after ``kill -9`` the file holds exactly the
+touches that finished, and ``--resume`` carries on from the first plan index without a point
+log. Point logs are keyed by plan index, so one can never be stored twice.
+
+Arrays are stored as little-endian blobs (``uint16`` frames, ``float64`` values), so what is
+read back is bit for bit what was computed: replay depends on that.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from varskin.board.frame import N_RX, N_TX, Frame, Gap
+from varskin.errors import StoreError
+from varskin.pointlogs import PointLog, PointLogs
+from varskin.predictions import Predictions, SensorEstimate
+
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE frames (seq INTEGER PRIMARY KEY, t REAL NOT NULL, cells BLOB NOT NULL);
+CREATE TABLE gaps (start REAL NOT NULL, end REAL NOT NULL, reason TEXT NOT NULL,
+                   PRIMARY KEY (start, end));
+CREATE TABLE baseline (sensor TEXT PRIMARY KEY, idx INTEGER NOT NULL, rest REAL NOT NULL,
+                       rest_sd REAL NOT NULL, n INTEGER NOT NULL);
+CREATE TABLE attempts (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    plan_index INTEGER NOT NULL, attempt INTEGER NOT NULL,
+    x_mm REAL NOT NULL, y_mm REAL NOT NULL, phase TEXT NOT NULL,
+    status TEXT NOT NULL, message TEXT NOT NULL DEFAULT '',
+    t_start REAL, t_contact REAL, t_settled REAL, t_release REAL, t_end REAL,
+    peak_force_n REAL, mean_force_n REAL, seq_first INTEGER, seq_last INTEGER);
+CREATE TABLE outcomes (plan_index INTEGER PRIMARY KEY, x_mm REAL NOT NULL, y_mm REAL NOT NULL,
+                       phase TEXT NOT NULL, ok INTEGER NOT NULL);
+CREATE TABLE point_logs (
+    plan_index INTEGER PRIMARY KEY REFERENCES outcomes(plan_index),
+    attempt_id INTEGER NOT NULL REFERENCES attempts(id),
+    x_mm REAL NOT NULL, y_mm REAL NOT NULL, t_s REAL NOT NULL, force_n REAL NOT NULL,
+    n_samples INTEGER NOT NULL, n_baseline INTEGER NOT NULL,
+    value_blob BLOB NOT NULL, sd_blob BLOB NOT NULL);
+CREATE TABLE estimates (
+    stage TEXT NOT NULL, n_logs INTEGER NOT NULL, method TEXT NOT NULL, sensor TEXT NOT NULL,
+    x_mm REAL, y_mm REAL, sigma_mm REAL, snr_db REAL, status TEXT NOT NULL,
+    PRIMARY KEY (stage, n_logs, method, sensor));
+"""
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """One try at one plan touch, as the session saw it (host monotonic times, s)."""
+
+    plan_index: int
+    attempt: int
+    x_mm: float
+    y_mm: float
+    phase: str
+    status: str  # "ok", "no_contact", "board_gap", "protective_stop", "force_limit", ...
+    message: str = ""
+    t_start: float | None = None
+    t_contact: float | None = None
+    t_settled: float | None = None
+    t_release: float | None = None
+    t_end: float | None = None
+    peak_force_n: float | None = None
+    mean_force_n: float | None = None
+    seq_first: int | None = None  # the frames the attempt saw (host clocks restart on reboot;
+    seq_last: int | None = None  # frame numbers in the store never do)
+    id: int | None = None  # assigned by the store
+
+
+@dataclass(frozen=True)
+class StoredLog:
+    """A point log with the bookkeeping that ties it to its plan touch and its attempt."""
+
+    plan_index: int
+    attempt_id: int
+    n_baseline: int
+    log: PointLog
+
+
+@dataclass(frozen=True)
+class Outcome:
+    plan_index: int
+    x_mm: float
+    y_mm: float
+    phase: str
+    ok: bool
+
+
+def _f64(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f8").tobytes()
+
+
+def _u16(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<u2").tobytes()
+
+
+class SessionStore:
+    """``SessionStore.create(path, meta)`` for a new session, ``SessionStore.open(path)`` to
+    resume or read one. Use from one thread: the session drains the recorder's frames into
+    it; the recorder thread never touches the connection."""
+
+    def __init__(self, path: Path, conn: sqlite3.Connection) -> None:
+        self.path = path
+        self._conn = conn
+
+    # --- opening ------------------------------------------------------------------------
+
+    @classmethod
+    def create(cls, path: str | Path, meta: dict[str, object]) -> SessionStore:
+        path = Path(path)
+        if path.exists():
+            raise StoreError(
+                f"{path}: already exists; resume it with --resume {path} or choose another -o"
+            )
+        path.parent.mkdir(parents=True, exist_ok=True)
+        conn = cls._connect(path)
+        try:
+            with conn:
+                conn.executescript(_SCHEMA)
+                rows = {"schema_version": SCHEMA_VERSION, **meta}
+                conn.executemany(
+                    "INSERT INTO meta VALUES (?, ?)",
+                    [(k, json.dumps(v)) for k, v in rows.items()],
+                )
+        except sqlite3.Error as e:
+            conn.close()
+            raise StoreError(f"{path}: cannot create session store ({e})") from None
+        return cls(path, conn)
+
+    @classmethod
+    def open(cls, path: str | Path) -> SessionStore:
+        path = Path(path)
+        if not path.is_file():
+            raise StoreError(f"{path}: no such session file")
+        try:
+            conn = cls._connect(path)
+            version = conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
+        except sqlite3.Error as e:
+            raise StoreError(f"{path}: not a varskin session file ({e})") from None
+        if version is None or json.loads(version[0]) != SCHEMA_VERSION:
+            conn.close()
+            raise StoreError(f"{path}: unsupported session file version {version}")
+        return cls(path, conn)
+
+    @staticmethod
+    def _connect(path: Path) -> sqlite3.Connection:
+        conn = sqlite3.connect(path, timeout=10.0, isolation_level="DEFERRED")
+        conn.execute("PRAGMA journal_mode=WAL")
+        # NORMAL survives a killed process (the WAL is in the OS's hands after each commit);
+        # only a power cut can lose the last transactions, never corrupt the file.
+        conn.execute("PRAGMA synchronous=NORMAL")
+        conn.execute("PRAGMA foreign_keys=ON")
+        return conn
+
+    def close(self) -> None:
+        self._conn.close()
+
+    def __enter__(self) -> SessionStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # --- metadata -----------------------------------------------------------------------
+
+    def meta(self) -> dict[str, object]:
+        return {k: json.loads(v) for k, v in self._conn.execute("SELECT key, value FROM meta")}
+
+    def set_meta(self, key: str, value: object) -> None:
+        with self._conn:
+            self._conn.execute(
+                "INSERT OR REPLACE INTO meta VALUES (?, ?)", (key, json.dumps(value))
+            )
+
+    # --- writing ------------------------------------------------------------------------
+
+    def write_baseline(self, sensors: Iterable[str], rest: np.ndarray, rest_sd: np.ndarray, n: int):
+        with self._conn:
+            self._conn.executemany(
+                "INSERT INTO baseline VALUES (?, ?, ?, ?, ?)",
+                [
+                    (s, i, float(r), float(sd), int(n))
+                    for i, (s, r, sd) in enumerate(zip(sensors, rest, rest_sd, strict=True))
+                ],
+            )
+
+    def add_frames(self, frames: Iterable[Frame]) -> None:
+        """Insert frames (not committed: the next ``commit_touch`` or ``commit`` does it)."""
+        self._conn.executemany(
+            "INSERT OR IGNORE INTO frames VALUES (?, ?, ?)",
+            [(f.seq, f.t, _u16(f.cells)) for f in frames],
+        )
+
+    def add_gaps(self, gaps: Iterable[Gap]) -> None:
+        self._conn.executemany(
+            "INSERT OR IGNORE INTO gaps VALUES (?, ?, ?)",
+            [(g.start, g.end, g.reason) for g in gaps],
+        )
+
+    def add_attempt(self, a: Attempt) -> int:
+        """Insert an attempt record (not committed) and return its id."""
+        cur = self._conn.execute(
+            "INSERT INTO attempts (plan_index, attempt, x_mm, y_mm, phase, status, message, "
+            "t_start, t_contact, t_settled, t_release, t_end, peak_force_n, mean_force_n, "
+            "seq_first, seq_last) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (
+                a.plan_index, a.attempt, a.x_mm, a.y_mm, a.phase, a.status, a.message,
+                a.t_start, a.t_contact, a.t_settled, a.t_release, a.t_end,
+                a.peak_force_n, a.mean_force_n, a.seq_first, a.seq_last,
+            ),
+        )  # fmt: skip
+        return int(cur.lastrowid)
+
+    def commit_touch(
+        self,
+        outcome: Outcome,
+        stored: StoredLog | None,
+        estimates: Predictions | None,
+    ) -> None:
+        """Close one plan touch: its outcome, its point log (if it succeeded) and the live
+        estimates after it, committed together with everything added since the last commit.
+        A plan index already closed is an error: it would duplicate a point log."""
+        try:
+            self._conn.execute(
+                "INSERT INTO outcomes VALUES (?, ?, ?, ?, ?)",
+                (outcome.plan_index, outcome.x_mm, outcome.y_mm, outcome.phase, int(outcome.ok)),
+            )
+            if stored is not None:
+                g = stored.log
+                self._conn.execute(
+                    "INSERT INTO point_logs VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (
+                        stored.plan_index, stored.attempt_id, g.x_mm, g.y_mm, g.t_s, g.force_n,
+                        g.n_samples, stored.n_baseline, _f64(g.values), _f64(g.sample_sd),
+                    ),
+                )  # fmt: skip
+            if estimates is not None:
+                self._insert_estimates("live", self.n_point_logs(), estimates)
+        except sqlite3.IntegrityError as e:
+            self._conn.rollback()
+            raise StoreError(
+                f"{self.path}: plan touch {outcome.plan_index} is already stored ({e})"
+            ) from None
+        self._conn.commit()
+
+    def write_final(self, predictions: Predictions) -> None:
+        with self._conn:
+            self._conn.execute(
+                "DELETE FROM estimates WHERE stage='final' AND method=?", (predictions.method,)
+            )
+            self._insert_estimates("final", self.n_point_logs(), predictions)
+
+    def commit(self) -> None:
+        self._conn.commit()
+
+    def rollback(self) -> None:
+        self._conn.rollback()
+
+    def _insert_estimates(self, stage: str, n_logs: int, p: Predictions) -> None:
+        self._conn.executemany(
+            "INSERT INTO estimates VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [
+                (stage, n_logs, p.method, e.sensor, e.x_mm, e.y_mm, e.sigma_mm, e.snr_db, e.status)
+                for e in p.estimates
+            ],
+        )
+
+    # --- reading ------------------------------------------------------------------------
+
+    def sensors(self) -> tuple[str, ...]:
+        return tuple(self.meta()["sensors"])  # type: ignore[arg-type]
+
+    def baseline(self) -> tuple[np.ndarray, np.ndarray, int] | None:
+        rows = self._conn.execute("SELECT rest, rest_sd, n FROM baseline ORDER BY idx").fetchall()
+        if not rows:
+            return None
+        a = np.array([r[:2] for r in rows], float)
+        return a[:, 0], a[:, 1], int(rows[0][2])
+
+    def n_point_logs(self) -> int:
+        return int(self._conn.execute("SELECT COUNT(*) FROM point_logs").fetchone()[0])
+
+    def outcomes(self) -> list[Outcome]:
+        return [
+            Outcome(int(i), x, y, ph, bool(ok))
+            for i, x, y, ph, ok in self._conn.execute(
+                "SELECT plan_index, x_mm, y_mm, phase, ok FROM outcomes ORDER BY plan_index"
+            )
+        ]
+
+    def stored_logs(self) -> list[StoredLog]:
+        n = len(self.sensors())
+        out = []
+        for row in self._conn.execute(
+            "SELECT plan_index, attempt_id, x_mm, y_mm, t_s, force_n, n_samples, n_baseline, "
+            "value_blob, sd_blob FROM point_logs ORDER BY plan_index"
+        ):
+            i, aid, x, y, t, f, ns, nb, vb, sb = row
+            values = np.frombuffer(vb, "<f8").astype(np.float64)
+            sd = np.frombuffer(sb, "<f8").astype(np.float64)
+            if len(values) != n or len(sd) != n:
+                raise StoreError(f"{self.path}: point log {i} has {len(values)} values, not {n}")
+            log = PointLog(int(i), x, y, values, int(ns), sd, t, f)
+            out.append(StoredLog(int(i), int(aid), int(nb), log))
+        return out
+
+    def point_logs(self) -> PointLogs:
+        """Every stored point log, in plan order, with the session's rest values."""
+        base = self.baseline()
+        rest, rest_sd = (base[0], base[1]) if base else (None, None)
+        return PointLogs.from_logs(
+            self.sensors(),
+            [s.log for s in self.stored_logs()],
+            rest=rest,
+            rest_sd=rest_sd,
+            source=str(self.path),
+        )
+
+    def attempts(self, plan_index: int | None = None) -> list[Attempt]:
+        sql = (
+            "SELECT plan_index, attempt, x_mm, y_mm, phase, status, message, t_start, t_contact, "
+            "t_settled, t_release, t_end, peak_force_n, mean_force_n, seq_first, seq_last, id "
+            "FROM attempts"
+        )
+        args: tuple = ()
+        if plan_index is not None:
+            sql += " WHERE plan_index=?"
+            args = (plan_index,)
+        return [Attempt(*row) for row in self._conn.execute(sql + " ORDER BY id", args)]
+
+    def attempt(self, attempt_id: int) -> Attempt:
+        row = self._conn.execute(
+            "SELECT plan_index, attempt, x_mm, y_mm, phase, status, message, t_start, t_contact, "
+            "t_settled, t_release, t_end, peak_force_n, mean_force_n, seq_first, seq_last, id "
+            "FROM attempts WHERE id=?",
+            (attempt_id,),
+        ).fetchone()
+        if row is None:
+            raise StoreError(f"{self.path}: no attempt {attempt_id}")
+        return Attempt(*row)
+
+    def frames_by_seq(self, first: int, last: int) -> list[Frame]:
+        return [
+            Frame(int(seq), float(t), np.frombuffer(b, "<u2").reshape(N_TX, N_RX).copy())
+            for seq, t, b in self._conn.execute(
+                "SELECT seq, t, cells FROM frames WHERE seq >= ? AND seq <= ? ORDER BY seq",
+                (first, last),
+            )
+        ]
+
+    def frames(self) -> Iterator[Frame]:
+        for seq, t, b in self._conn.execute("SELECT seq, t, cells FROM frames ORDER BY seq"):
+            yield Frame(int(seq), float(t), np.frombuffer(b, "<u2").reshape(N_TX, N_RX).copy())
+
+    def n_frames(self) -> int:
+        return int(self._conn.execute("SELECT COUNT(*) FROM frames").fetchone()[0])
+
+    def max_frame_seq(self) -> int:
+        row = self._conn.execute("SELECT MAX(seq) FROM frames").fetchone()
+        return -1 if row[0] is None else int(row[0])
+
+    def gaps(self) -> list[Gap]:
+        return [
+            Gap(s, e, r)
+            for s, e, r in self._conn.execute("SELECT start, end, reason FROM gaps ORDER BY start")
+        ]
+
+    def estimates(self, stage: str, method: str | None = None) -> dict[int, Predictions]:
+        """Stored estimates of a stage ("live" or "final"), keyed by the number of point logs
+        they were computed from."""
+        sql = "SELECT n_logs, method, sensor, x_mm, y_mm, sigma_mm, snr_db, status FROM estimates"
+        sql += " WHERE stage=?" + (" AND method=?" if method else "")
+        args = (stage, method) if method else (stage,)
+        order = {s: i for i, s in enumerate(self.sensors())}
+        by_n: dict[int, Predictions] = {}
+        for n, m, s, x, y, sig, snr, st in self._conn.execute(sql, args):
+            p = by_n.setdefault(int(n), Predictions(m, []))
+            p.estimates.append(SensorEstimate(s, x, y, sig, snr, st))
+        for p in by_n.values():
+            p.estimates.sort(key=lambda e: order.get(e.sensor, 0))
+        return dict(sorted(by_n.items()))

@@ -1,0 +1,153 @@
+"""Cutting one touch's point log out of the frame stream, the same way live and in replay.
+
+The recorder stamps each frame with the host's monotonic clock when its line completes; the
+arm reports the touch's phases (start of descent, contact, force settled, release) on the
+same clock. A frame's *sample time* is its stamp minus the line's transmission latency.
+Two windows are cut:
+
+* the **baseline**: no-contact frames during the descent, ending ``guard_s`` before contact
+  (the probe's approach and the first squeeze are transitions), at most ``baseline_s`` long;
+* the **touch**: frames sampled between force settled and release (the arm's dwell).
+
+The point log is the robust mean of the touch window minus the robust mean of the baseline
+window, so slow drift between touches cancels. Everything here is a pure function of the
+frames and the attempt's times: replay runs this very code on the stored frames and gets the
+stored point log back bit for bit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from varskin.board.cellmap import CellMap
+from varskin.board.frame import Frame, Gap
+from varskin.pointlogs import PointLog
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Host-clock seconds (a time-scaled simulated rig divides its values by the scale)."""
+
+    baseline_s: float = 1.0  # longest no-contact window before contact
+    guard_s: float = 0.15  # excluded before contact: the probe is landing
+    latency_s: float = 0.0  # line transmission: a frame was sampled this long before its stamp
+    min_touch_frames: int = 3
+    min_baseline_frames: int = 2
+    max_frame_interval_s: float = 0.6  # a longer silence inside a window is a board gap
+
+    def scaled(self, time_scale: float) -> WindowConfig:
+        """The same windows on a rig whose clock runs ``time_scale`` times faster."""
+        k = float(time_scale)
+        return WindowConfig(
+            self.baseline_s / k,
+            self.guard_s / k,
+            self.latency_s / k,
+            self.min_touch_frames,
+            self.min_baseline_frames,
+            self.max_frame_interval_s / k,
+        )
+
+
+class WindowProblem(Exception):
+    """The frames do not make a trustworthy point log; ``kind`` says why ("board_gap")."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+@dataclass(frozen=True)
+class TouchTimes:
+    t_start: float  # the descent began (the probe is at clearance height)
+    t_contact: float
+    t_settled: float
+    t_release: float
+
+
+def robust_mean(samples: np.ndarray, floor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per column: the mean of the samples within 3 robust sigmas of the median, and their
+    standard deviation. A spike (a garbled cell, an ESD glitch) in one frame cannot move the
+    log; ``floor`` keeps integer counts with zero MAD from rejecting everything but the median.
+    """
+    x = np.asarray(samples, float)
+    med = np.median(x, axis=0)
+    mad = 1.4826 * np.median(np.abs(x - med), axis=0)
+    keep = np.abs(x - med) <= 3.0 * np.maximum(mad, floor)
+    n = keep.sum(axis=0)
+    mean = np.where(keep, x, 0.0).sum(axis=0) / n
+    dev = np.where(keep, x - mean, 0.0)
+    sd = np.sqrt((dev**2).sum(axis=0) / np.maximum(n - 1, 1))
+    return mean, sd
+
+
+def _sample_times(frames: Sequence[Frame], cfg: WindowConfig) -> np.ndarray:
+    return np.array([f.t for f in frames], float) - cfg.latency_s
+
+
+def check_link(gaps: Sequence[Gap], t0: float, t1: float) -> None:
+    """Raise ``WindowProblem("board_gap")`` if the recorder lost the link anywhere in
+    [t0, t1] (the loss starts at the last frame before the gap was noticed)."""
+    for g in gaps:
+        lost = g.last_frame_t if g.last_frame_t is not None else g.start
+        if lost <= t1 and g.end >= t0:
+            raise WindowProblem("board_gap", f"board link down {g.duration_s:.2f} s ({g.reason})")
+
+
+def _check_silence(ts: np.ndarray, start: float, end: float, what: str, cfg: WindowConfig):
+    """A board that stops sending without dropping the link (a hung firmware, a starved
+    host) leaves a hole in a window; the frames around it would misrepresent the touch."""
+    edges = np.concatenate([[start], ts, [end]])
+    silence = float(np.max(np.diff(edges)))
+    if silence > cfg.max_frame_interval_s:
+        raise WindowProblem("board_gap", f"no frame for {silence:.2f} s in the {what} window")
+
+
+def cut_point_log(
+    frames: Sequence[Frame],
+    times: TouchTimes,
+    cellmap: CellMap,
+    cfg: WindowConfig,
+    touch: int,
+    x_mm: float,
+    y_mm: float,
+    force_n: float,
+    t_session_s: float,
+) -> tuple[PointLog, int]:
+    """(point log, number of baseline frames) for one touch; ``WindowProblem`` if the
+    windows hold too few frames. ``frames`` may be any superset of the touch's frames."""
+    ts = _sample_times(frames, cfg)
+    b_end = times.t_contact - cfg.guard_s
+    b_start = max(times.t_start, b_end - cfg.baseline_s)
+    base_rows = [f for f, t in zip(frames, ts, strict=True) if b_start <= t <= b_end]
+    touch_rows = [
+        f for f, t in zip(frames, ts, strict=True) if times.t_settled <= t <= times.t_release
+    ]
+    if len(touch_rows) < cfg.min_touch_frames:
+        raise WindowProblem(
+            "board_gap",
+            f"{len(touch_rows)} frame(s) in the touch window, need {cfg.min_touch_frames}",
+        )
+    if len(base_rows) < cfg.min_baseline_frames:
+        raise WindowProblem(
+            "board_gap",
+            f"{len(base_rows)} frame(s) in the baseline window, need {cfg.min_baseline_frames}",
+        )
+    _check_silence(ts[(ts >= b_start) & (ts <= b_end)], b_start, b_end, "baseline", cfg)
+    in_touch = (ts >= times.t_settled) & (ts <= times.t_release)
+    _check_silence(ts[in_touch], times.t_settled, times.t_release, "touch", cfg)
+    base_mean, _ = robust_mean(np.array([cellmap.values(f) for f in base_rows]))
+    touch_mean, touch_sd = robust_mean(np.array([cellmap.values(f) for f in touch_rows]))
+    log = PointLog(
+        touch=touch,
+        x_mm=float(x_mm),
+        y_mm=float(y_mm),
+        values=touch_mean - base_mean,
+        n_samples=len(touch_rows),
+        sample_sd=touch_sd,
+        t_s=float(t_session_s),
+        force_n=float(force_n),
+    )
+    return log, len(base_rows)
