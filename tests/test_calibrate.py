@@ -203,31 +203,6 @@ def _wait_for_contact(rig, n_logs_at_least: int, stop: threading.Event, db: Path
     return False
 
 
-def test_board_unplugged_mid_touch_is_retried(tmp_path):
-    db = tmp_path / "unplug.db"
-    launch = write_launch(tmp_path / "sim_small.yaml", FAULT_GRID)
-
-    def unplug(rig, store, stop):
-        if _wait_for_contact(rig, 4, stop, db):
-            rig.board.unplug()  # the USB cable comes out while the probe presses
-            time.sleep(0.3)
-            rig.board.replug()
-
-    events: list[SessionEvent] = []
-    result = _run_session(launch, db, unplug, events.append)
-    with SessionStore.open(db) as store:
-        attempts = store.attempts()
-        gaps = store.gaps()
-        stored = store.stored_logs()
-    unplugged = [a for a in attempts if a.status == "board_gap" and "link down" in a.message]
-    assert len(unplugged) == 1 and len(gaps) == 1
-    retried = [a.status for a in attempts if a.plan_index == unplugged[0].plan_index]
-    assert retried[0] == "board_gap" and retried[-1] == "ok"
-    assert [s.plan_index for s in stored] == list(range(FAULT_N))
-    assert result.n_failed == 0
-    assert any(e.kind == "attempt" and "board_gap" in e.message for e in events)
-
-
 def _dashboard(host: str, command: str) -> str:
     with socket.create_connection((host, 29999), timeout=5) as s:
         f = s.makefile("rwb")
@@ -237,36 +212,46 @@ def _dashboard(host: str, command: str) -> str:
         return f.readline().decode().strip()
 
 
-def test_protective_stop_pauses_until_unlocked(tmp_path):
-    db = tmp_path / "pstop.db"
+def test_board_unplug_and_protective_stop_mid_touch(tmp_path):
+    """One session, two faults while the probe presses: the board's USB cable comes out
+    (that touch is retried), and later the arm protective-stops (the session pauses until
+    someone unlocks it on the pendant, then retries the touch). Nothing is lost."""
+    db = tmp_path / "faults.db"
     launch = write_launch(tmp_path / "sim_small.yaml", FAULT_GRID)
     unlocked_at: list[float] = []
 
-    def protective_stop(rig, store, stop):
-        if _wait_for_contact(rig, 5, stop, db):
+    def faults(rig, store, stop):
+        if _wait_for_contact(rig, 3, stop, db):
+            rig.board.unplug()
+            time.sleep(0.3)
+            rig.board.replug()
+        if _wait_for_contact(rig, 9, stop, db):
             rig.controller.inject_protective_stop()
             time.sleep(1.0)  # someone walks to the pendant
             unlocked_at.append(time.monotonic())
             _dashboard(rig.controller.host, "unlock protective stop")
 
     events: list[tuple[float, SessionEvent]] = []
-    result = _run_session(
-        launch, db, protective_stop, lambda e: events.append((time.monotonic(), e))
-    )
-    kinds = [e.kind for _, e in events]
-    assert "pause" in kinds and "resume" in kinds
-    t_pause = next(t for t, e in events if e.kind == "pause")
-    t_resume = next(t for t, e in events if e.kind == "resume")
-    assert t_pause < unlocked_at[0] <= t_resume  # it waited for the unlock, not for a timer
+    result = _run_session(launch, db, faults, lambda e: events.append((time.monotonic(), e)))
     with SessionStore.open(db) as store:
         attempts = store.attempts()
+        gaps = store.gaps()
         stored = store.stored_logs()
+    assert [s.plan_index for s in stored] == list(range(FAULT_N))  # every touch has its log
+    assert result.n_failed == 0
+
+    unplugged = [a for a in attempts if a.status == "board_gap" and "link down" in a.message]
+    assert len(unplugged) == 1 and len(gaps) == 1
+    retried = [a.status for a in attempts if a.plan_index == unplugged[0].plan_index]
+    assert retried[0] == "board_gap" and retried[-1] == "ok"
+
     stopped = [a for a in attempts if a.status == "protective_stop"]
     assert len(stopped) == 1
     again = [a.status for a in attempts if a.plan_index == stopped[0].plan_index]
-    assert again == ["protective_stop", "ok"]
-    assert [s.plan_index for s in stored] == list(range(FAULT_N))
-    assert result.n_failed == 0
+    assert again[0] == "protective_stop" and again[-1] == "ok"
+    t_pause = next(t for t, e in events if e.kind == "pause")
+    t_resume = next(t for t, e in events if e.kind == "resume")
+    assert t_pause < unlocked_at[0] <= t_resume  # it waited for the unlock, not for a timer
 
 
 def test_malformed_config_fails_before_anything_starts(tmp_path, capsys, monkeypatch):
@@ -307,3 +292,58 @@ def test_resume_refuses_a_changed_launch_file(full_run, tmp_path, capsys):
         assert "changed since the session started" in capsys.readouterr().err
     finally:
         launch.write_text(original)
+
+
+def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
+    """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
+    stored point logs to the localizer and must land on exactly the stored touches (else the
+    resume refuses). A complete session resumes to its end without a new touch."""
+    launch = write_launch(tmp_path / "sim_adaptive.yaml", **{"plan.mode": "adaptive"})
+    db = tmp_path / "adaptive.db"
+    assert main(["calibrate", str(launch), "-o", str(db), "--budget", "28"]) == 0
+    with SessionStore.open(db) as store:
+        outcomes = store.outcomes()
+        n_attempts = len(store.attempts())
+        n_frames = store.n_frames()
+    phases = [o.phase for o in outcomes]
+    assert len(outcomes) <= 28 and phases[0] == "coarse" and "adaptive" in phases
+    adaptive_xy = {(o.x_mm, o.y_mm) for o in outcomes if o.phase == "adaptive"}
+    coarse_xy = {(o.x_mm, o.y_mm) for o in outcomes if o.phase == "coarse"}
+    assert not adaptive_xy & coarse_xy  # off the coarse grid: chosen, not a grid
+    capsys.readouterr()
+    assert main(["calibrate", "--resume", str(db)]) == 0
+    assert f"resumed after {len(outcomes)} plan touches" in capsys.readouterr().err
+    with SessionStore.open(db) as store:
+        assert len(store.attempts()) == n_attempts  # the robot touched nothing more
+        assert len(store.outcomes()) == len(outcomes)
+        assert store.n_frames() >= n_frames
+
+
+def test_live_view_draws_in_place_on_a_terminal_and_lines_in_a_log():
+    import io
+
+    from varskin.live_view import LiveView
+    from varskin.predictions import Predictions, SensorEstimate
+
+    p = Predictions(
+        "peakfit",
+        [SensorEstimate("S1", 1.0, 2.0, 0.2), SensorEstimate("S2", None, None, None, None, "weak")],
+    )
+    tty = io.StringIO()
+    view = LiveView(4, tty, tty=True)
+    for i in range(2):
+        view(SessionEvent("point_log", plan_index=i, n_logs=i + 1, predictions=p))
+    text = tty.getvalue()
+    assert text.count("\x1b[3F") == 1  # the second drawing went back over the first
+    assert "2/4" in text and "located 1/2, sigma median 0.20 max 0.20 mm" in text
+    assert "weak" in text and "S1    1.0   2.0  0.20" in text
+
+    log = io.StringIO()
+    view = LiveView(4, log, tty=False, every=2)
+    for i in range(4):
+        view(SessionEvent("point_log", plan_index=i, n_logs=i + 1, predictions=p))
+    view(SessionEvent("pause", "PAUSED at touch 3: protective stop"))
+    lines = log.getvalue().splitlines()
+    assert "\x1b" not in log.getvalue()
+    assert len(lines) == 3 and "2/4" in lines[0] and "4/4" in lines[1]
+    assert lines[2] == "PAUSED at touch 3: protective stop"

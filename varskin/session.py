@@ -206,6 +206,7 @@ class CalibrationSession:
         if outcomes:
             rest, rest_sd, _ = self.store.baseline() or (None, None, 0)
             self.localizer = self._new_localizer(rest, rest_sd)
+        touch: PlannedTouch | None = None
         try:
             touch = next(self.planner)
             for o in outcomes:
@@ -216,14 +217,16 @@ class CalibrationSession:
                         f"({touch.x_mm:g}, {touch.y_mm:g}) mm; was the launch file changed?"
                     )
                 preds = self.localizer.update(logs[o.plan_index]) if o.ok else None
-                touch = self.planner.send(TouchOutcome(touch, o.ok, preds))
+                planned, touch = touch, None  # None if the plan ends here
+                touch = self.planner.send(TouchOutcome(planned, o.ok, preds))
         except StopIteration:
-            return None
+            pass
         if outcomes:
+            what = "the plan is complete" if touch is None else f"next: touch {touch.index}"
             self.on_event(
                 SessionEvent(
                     "resume",
-                    f"resumed after {len(outcomes)} plan touches ({len(logs)} point logs)",
+                    f"resumed after {len(outcomes)} plan touches ({len(logs)} point logs); {what}",
                     n_logs=len(logs),
                 )
             )

@@ -239,7 +239,7 @@ def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
     lines = [
         f"touches: {result.n_planned} planned, {len(result.logs)} point logs, "
         f"{result.n_failed} failed, {result.n_attempts} attempts",
-        f"time: {result.wall_s:.1f} s wall here"
+        f"time: {result.wall_s:.1f} s wall in this run"
         + (f" (simulated clock x{rig.time_scale:g})" if rig.time_scale != 1 else "")
         + f"; the same plan on a real rig: about {est.total_s / 60:.1f} min "
         f"(motion and dwell model: travel {est.travel_s:.0f} s, descent {est.descent_s:.0f} s, "
@@ -256,4 +256,5 @@ def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
     for line in lines:
         print(line)
     store.set_meta("rig_time_estimate_s", est.total_s)
-    store.set_meta("wall_s", result.wall_s)
+    # a resumed session adds this run's time to the earlier runs'
+    store.set_meta("wall_s", float(store.meta().get("wall_s") or 0.0) + result.wall_s)
