@@ -9,7 +9,7 @@ the safety ``Envelope`` around it.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -56,13 +56,15 @@ class PlanConfig:
     nx: int  # touches along the patch length (x)
     ny: int  # touches across (y)
     margin_mm: float  # keep-out band inside the outline
+    mode: str = "uniform"  # "uniform" (the nx x ny grid) or "adaptive"
+    budget: int = 100  # adaptive: most touches in all
+    target_sigma_mm: float | None = None  # adaptive: stop when every sigma is below (None: default)
 
     def points_mm(self, patch: Patch) -> np.ndarray:
         """(nx*ny, 2) uniform grid in the patch frame, serpentine to keep travel short."""
-        xs = np.linspace(self.margin_mm, patch.length_mm - self.margin_mm, self.nx)
-        ys = np.linspace(self.margin_mm, patch.width_mm - self.margin_mm, self.ny)
-        rows = [[(x, y) for y in (ys if i % 2 == 0 else ys[::-1])] for i, x in enumerate(xs)]
-        return np.array([p for row in rows for p in row], float)
+        from varskin.planning import uniform_points
+
+        return uniform_points(patch, self.nx, self.ny, self.margin_mm)
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,9 @@ class SimConfig:
     force_offset_n: float = 0.8
     force_noise_sd_n: float = 0.05
     registration_error_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # true patch - registered
+    # simulated seconds per wall second of the simulated controller (and board): > 1 runs a
+    # long plan in CI time; see LaunchConfig.arm_touch_spec for what it does to the touch
+    time_scale: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -93,6 +98,23 @@ class LaunchConfig:
     def plan_points_m(self) -> np.ndarray:
         """The plan's surface points in the base frame (K, 3)."""
         return self.frame.to_base(self.plan.points_mm(self.patch))
+
+    def arm_touch_spec(self) -> TouchSpec:
+        """The touch spec to hand the arm driver: ``touch`` with its host-clock durations
+        (``dwell_s``, ``settle_s``) divided by ``sim.time_scale``.
+
+        The driver times the settle and the dwell on the host clock, while a time-scaled
+        simulated controller runs ``time_scale`` simulated seconds per wall second; dividing
+        makes the robot hold the force for ``touch.dwell_s`` *simulated* seconds, as it would
+        on a real rig. Speeds are not changed: the controller already runs them faster. For
+        a real rig (time scale 1) this is ``touch`` itself.
+        """
+        scale = self.sim.time_scale
+        if scale == 1.0:
+            return self.touch
+        return replace(
+            self.touch, dwell_s=self.touch.dwell_s / scale, settle_s=self.touch.settle_s / scale
+        )
 
     def true_frame(self) -> PatchFrame:
         """Where a simulated rig really puts the skin: the registration plus its error."""
@@ -346,7 +368,7 @@ def _touch(c: _Checker, value: object) -> TouchSpec:
 
 def _plan(c: _Checker, value: object, patch: Patch) -> PlanConfig:
     m = c.mapping(value, "plan")
-    c.known(m, {"grid", "margin_mm"}, "plan.")
+    c.known(m, {"grid", "margin_mm", "mode", "budget", "target_sigma_mm"}, "plan.")
     c.require(m, "grid", "plan.")
     grid = m["grid"]
     if isinstance(grid, str) and "x" in grid:
@@ -362,7 +384,14 @@ def _plan(c: _Checker, value: object, patch: Patch) -> PlanConfig:
     margin = c.number(m.get("margin_mm", 3.0), "plan.margin_mm", 0.0)
     if 2 * margin >= min(patch.length_mm, patch.width_mm):
         raise c.err("plan.margin_mm", f"({margin:g} mm) leaves no room on patch {patch.name!r}")
-    return PlanConfig(nx, ny, margin)
+    mode = m.get("mode", "uniform")
+    if mode not in ("uniform", "adaptive"):
+        raise c.err("plan.mode", f"is {mode!r}, not uniform or adaptive")
+    budget = c.integer(m.get("budget", 100), "plan.budget", 1)
+    target = m.get("target_sigma_mm")
+    if target is not None:
+        target = c.number(target, "plan.target_sigma_mm", 0.0, strict=True)
+    return PlanConfig(nx, ny, margin, mode, budget, target)
 
 
 def _sim(c: _Checker, value: object) -> SimConfig:
@@ -378,4 +407,5 @@ def _sim(c: _Checker, value: object) -> SimConfig:
         force_offset_n=c.number(m.get("force_offset_n", 0.8), "sim.force_offset_n"),
         force_noise_sd_n=c.number(m.get("force_noise_sd_n", 0.05), "sim.force_noise_sd_n", 0.0),
         registration_error_mm=tuple(c.vector(err, "sim.registration_error_mm", 3)),
+        time_scale=c.number(m.get("time_scale", 1.0), "sim.time_scale", 0.0, strict=True),
     )

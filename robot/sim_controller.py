@@ -24,10 +24,23 @@ through shared memory, everything else (fault injection, logs) through a pipe.
 
 Simplifications (documented, deliberate): no kinematics (``actual_q`` is a plausible function
 of the pose), orientation is carried but never changes the contact, the force sensor noise is
-kinder than a real UR's (see ``SimRig.ft_noise_n``), simulated time is real time, contact
-detection fires on the skin's force whatever direction it was started with, the async
-progress register (``output_int_register_2``) stays 0, and input registers are not guarded
-against a second RTDE client (a real controller answers IN_USE).
+kinder than a real UR's (see ``SimRig.ft_noise_n``), contact detection fires on the skin's
+force whatever direction it was started with, the async progress register
+(``output_int_register_2``) stays 0, and input registers are not guarded against a second
+RTDE client (a real controller answers IN_USE).
+
+Time: by default simulated time is real time. ``SimRig.time_scale`` > 1 runs the controller
+faster than the wall clock (``time_scale`` simulated seconds per wall second) so a long
+simulated calibration finishes in CI time. Its loop then wakes every ``MIN_TICK_S`` of wall
+time (or ``cycle_s / time_scale`` if longer) and integrates ``tick x time_scale`` simulated
+seconds in sub-steps of at most one normal cycle, so force mode, contact detection and the
+force lag see the same step as at scale 1. The script's command loop runs in every sub-step
+and RTDE publishes at the requested frequency in simulated time. Speeds, accelerations and durations are in simulated
+seconds, and so are the logs (``force_log``, ``tcp_log``, ``commands_log``) and RTDE's
+``timestamp``. What cannot be scaled is the client: ur-rtde and the driver run on the host
+clock, so each of their wall milliseconds (a command handshake, a polling sleep) costs
+``time_scale`` simulated milliseconds, more than on a real rig; and the driver's own timed
+waits (dwell, settle) must be divided by the scale (``LaunchConfig.arm_touch_spec``).
 """
 
 from __future__ import annotations
@@ -57,6 +70,9 @@ SCRIPT_PORT = 30003
 # ur-rtde's script client uses 30003 on e-Series; the primary/secondary ports are bound as
 # silent sinks so a client that probes them finds a controller rather than a refusal.
 SINK_PORTS = (30001, 30002)
+# Shortest wall tick of a time-scaled controller: Python's sleep and the GIL make shorter
+# ticks jittery and CPU-hungry on a 2-core CI machine.
+MIN_TICK_S = 0.001
 
 CONTROLLER_VERSION = (5, 11, 1, 108318)
 POLYSCOPE_VERSION = "URSoftware 5.11.1.108318 (Nov 11 2021)"
@@ -222,6 +238,13 @@ class SimRig:
     protective_stop_force_n: float = 150.0  # the controller protective-stops above this, like a UR
     contact_detect_force_n: float = 0.5  # contact detection fires above this true force
     unlock_delay_s: float = 0.0  # a real UR refuses unlocking for 5 s after a protective stop
+    # simulated seconds per wall second: > 1 runs the physics faster than real time (CI runs
+    # of long plans); 1 is a real-time controller
+    time_scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.time_scale) and self.time_scale > 0):
+            raise ValueError(f"SimRig.time_scale must be > 0, got {self.time_scale!r}")
 
     def home_pose(self) -> tuple[float, ...]:
         if self.start_pose is not None:
@@ -289,7 +312,15 @@ class _ControllerCore:
         self._threads: list[threading.Thread] = []
         self._listeners: list[socket.socket] = []
         self._clients: set[socket.socket] = set()
-        self._sim_t = 0.0  # controller time: control cycles x cycle time
+        self._sim_t = 0.0  # controller time: simulated seconds integrated so far
+        # The wall tick: one control cycle in real time; when scaled, as short as the host's
+        # sleep allows (MIN_TICK_S), so that a command handshake with the client (which runs
+        # on the wall clock) costs few simulated cycles. Each tick integrates tick x scale
+        # simulated seconds in sub-steps of at most one cycle, so the force loop and contact
+        # detection are integrated as finely as in real time.
+        scale = rig.time_scale
+        self.tick_s = cycle_s if scale <= 1.0 else max(cycle_s / scale, min(MIN_TICK_S, cycle_s))
+        self._substeps = max(1, math.ceil(self.tick_s * scale / cycle_s - 1e-9))
         # controller state (all under _lock)
         self._pose = np.array(self.rig.home_pose(), float)
         self._vel = np.zeros(3)
@@ -302,6 +333,7 @@ class _ControllerCore:
         self._contact: dict | None = None  # active contact detection
         self._contact_detected = False
         self._true_force = 0.0
+        self._probe_xy: tuple[float, float] | None = None  # patch x, y mm while in contact
         self._reported_force = np.zeros(6)
         self._in_int: dict[int, int] = {}
         self._in_double: dict[int, float] = {}
@@ -416,7 +448,8 @@ class _ControllerCore:
     # --- inspection for tests --------------------------------------------------------------
 
     def force_log(self) -> np.ndarray:
-        """(K, 2) array of (controller time s (cycles x cycle time), true contact force N), one row per cycle."""
+        """(K, 2) array of (simulated controller time s, true contact force N), one row per
+        physics step."""
         with self._lock:
             rows = [(t, f) for t, _, _, _, f in self.trace]
         return np.array(rows, float).reshape(-1, 2)
@@ -451,12 +484,18 @@ class _ControllerCore:
 
     def _control_loop(self) -> None:
         next_t = time.monotonic()
+        dt = self.tick_s * self.rig.time_scale / self._substeps  # simulated s per sub-step
         while not self._stop_event.is_set():
-            next_t += self.cycle_s
+            next_t += self.tick_s
             with self._lock:
-                if self._script_running and not self._protective_stop:
-                    self._script_step()
-                self._physics_step(self.cycle_s)
+                # each sub-step is one control cycle of the faster controller: its script's
+                # command loop runs in it too, so a command takes the same simulated time to
+                # be picked up and acknowledged as at scale 1
+                for _ in range(self._substeps):
+                    if self._script_running and not self._protective_stop:
+                        self._script_step()
+                    self._physics_step(dt)
+                self._update_sensors()
             delay = next_t - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
@@ -576,7 +615,7 @@ class _ControllerCore:
             return
         log.info("simulated controller: protective stop (true force %.1f N)", self._true_force)
         self._protective_stop = True
-        self._protective_stop_t = time.monotonic()
+        self._protective_stop_t = time.monotonic()  # host clock (see dashboard_reply)
         self._vel = np.zeros(3)  # a protective stop halts the arm at once
         self._end_script()
         self._stopping_decel = None
@@ -628,11 +667,7 @@ class _ControllerCore:
 
         force, px, py = self._contact_force(self._pose)
         self._true_force = force
-        self._reported_force = self._raw_wrench() - self._ft_bias
-        if px is not None and force > 0.0:
-            self.probe_state.set(px, py, force)
-        else:
-            self.probe_state.set(None, None, 0.0)
+        self._probe_xy = (px, py) if px is not None and force > 0.0 else None
         self._sim_t += dt
         self.trace.append(
             (self._sim_t, float(self._pose[0]), float(self._pose[1]), float(self._pose[2]), force)
@@ -647,6 +682,17 @@ class _ControllerCore:
             self._contact_detected = True
             self._motion = None
             self._stop_motion(3.0)
+
+    def _update_sensors(self) -> None:
+        """What leaves the controller once per wall cycle: the force sensor's reading (RTDE
+        publishes it on the wall clock) and the probe state the simulated board samples.
+        Computed after the cycle's sub-steps rather than in each, since nothing reads the
+        intermediate values (and the shared-memory write is the costly part of a step)."""
+        self._reported_force = self._raw_wrench() - self._ft_bias
+        if self._probe_xy is not None:
+            self.probe_state.set(*self._probe_xy, self._true_force)
+        else:
+            self.probe_state.set(None, None, 0.0)
 
     def _force_mode_step(self, dt: float) -> None:
         """Admittance control along the compliant axes of the task frame, speed-limited.
@@ -811,7 +857,8 @@ class _ControllerCore:
                     self._in_double[int(m.group(2))] = float(v)
 
     def _publish(self, conn: socket.socket, send, outputs: dict, started: threading.Event) -> None:
-        period = 1.0 / outputs["freq"]
+        # the requested frequency is in controller (simulated) time, like everything else
+        period = 1.0 / (outputs["freq"] * self.rig.time_scale)
         next_t = time.monotonic()
         try:
             while started.is_set() and not self._stop_event.is_set():
@@ -970,7 +1017,9 @@ class _ControllerCore:
             if low == "unlock protective stop":
                 if not ps:
                     return "Protective stop releasing"
-                since = time.monotonic() - (self._protective_stop_t or 0.0)
+                # simulated seconds since the stop, from the host clock (not from _sim_t, which
+                # lags the wall clock when the machine is overloaded)
+                since = (time.monotonic() - (self._protective_stop_t or 0.0)) * self.rig.time_scale
                 if since < self.rig.unlock_delay_s:
                     return (
                         "Cannot unlock protective stop until 5s after occurrence. "
@@ -1187,11 +1236,12 @@ class SimulatedController:
 
     # inspection
     def force_log(self) -> np.ndarray:
-        """(K, 2): controller time s, TRUE contact force N, one row per 4 ms control cycle."""
+        """(K, 2): simulated controller time s, TRUE contact force N, one row per physics
+        step (one 4 ms control cycle of simulated time, also when time-scaled)."""
         return self._rpc("force_log")
 
     def tcp_log(self) -> np.ndarray:
-        """(K, 4): controller time s, TCP x, y, z m."""
+        """(K, 4): simulated controller time s, TCP x, y, z m (rows as ``force_log``)."""
         return self._rpc("tcp_log")
 
     def clear_logs(self) -> None:

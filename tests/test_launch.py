@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,26 @@ def test_sim_launch_loads_and_its_plan_is_inside_the_envelope():
     # Serpentine: consecutive touches are neighbours, never a jump back across the patch.
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     assert steps.max() < 0.01
+
+
+def test_arm_touch_spec_divides_host_clock_waits_by_the_sim_time_scale(tmp_path):
+    launch = load_launch(SIM)
+    scale = launch.sim.time_scale
+    assert scale > 1  # the shipped simulated rig runs faster than real time
+    arm = launch.arm_touch_spec()
+    assert arm.dwell_s == pytest.approx(launch.touch.dwell_s / scale)
+    assert arm.settle_s == pytest.approx(launch.touch.settle_s / scale)
+    # speeds, distances and forces are the controller's business: it runs them faster
+    assert dataclasses.replace(arm, dwell_s=0.0, settle_s=0.0) == dataclasses.replace(
+        launch.touch, dwell_s=0.0, settle_s=0.0
+    )
+    # a real rig, and a simulated one at scale 1 (the default), get the touch unchanged
+    real = load_launch(UR5E)
+    assert real.sim.time_scale == 1.0 and real.arm_touch_spec() == real.touch
+    data = yaml.safe_load(SIM.read_text())
+    del data["sim"]["time_scale"]
+    unscaled = load_launch(_write(tmp_path, data))
+    assert unscaled.sim.time_scale == 1.0 and unscaled.arm_touch_spec() == unscaled.touch
 
 
 def test_ur5e_template_loads_and_its_three_points_register_the_patch():
@@ -98,6 +119,8 @@ CASES = [
     ),
     ("sim.seed", -1, "'sim.seed' is -1, not an integer >= 0"),
     ("sim.stiffness", 3.0, "unknown key 'sim.stiffness'"),
+    ("sim.time_scale", 0, "'sim.time_scale' is 0, must be > 0"),
+    ("sim.time_scale", "fast", "'sim.time_scale' is 'fast', not a number"),
     ("robots", {}, "unknown key 'robots'"),
 ]
 

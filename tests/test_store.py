@@ -43,7 +43,9 @@ def _preds(x: float) -> Predictions:
 
 def _touch(store: SessionStore, i: int, rng, ok: bool = True) -> PointLog:
     log = _log(i, rng)
-    aid = store.add_attempt(Attempt(i, 1, log.x_mm, log.y_mm, "uniform", "ok" if ok else "no_contact"))
+    aid = store.add_attempt(
+        Attempt(i, 1, log.x_mm, log.y_mm, "uniform", "ok" if ok else "no_contact")
+    )
     store.commit_touch(
         Outcome(i, log.x_mm, log.y_mm, "uniform", ok),
         StoredLog(i, aid, 5, log) if ok else None,
@@ -58,7 +60,9 @@ def test_round_trip_is_bit_exact(tmp_path):
     cells = rng.integers(0, 65536, (21, 12)).astype(np.uint16)
     store.add_frames([Frame(0, 12.5, cells), Frame(1, 12.625, cells[::-1].copy())])
     store.add_gaps([Gap(13.0, 14.5, "unplugged", 12.625)])
-    store.write_baseline(SENSORS, np.array([9000.5, 8000.25, 7000.0]), np.array([4.0, 5.0, 6.0]), 50)
+    store.write_baseline(
+        SENSORS, np.array([9000.5, 8000.25, 7000.0]), np.array([4.0, 5.0, 6.0]), 50
+    )
     logs = [_touch(store, i, rng) for i in range(3)]
     store.close()
 

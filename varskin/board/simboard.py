@@ -12,6 +12,12 @@ unplug (both pty ends closed, link removed) and a replug (a fresh pty, link re-p
 to the recorder like a USB board going away and coming back. A pty ignores baud rate, so
 the line rate is paced in software. Faults a bench really produces can be injected: garbage
 bytes, truncated lines, log lines and I2C failure messages.
+
+Time can run faster than the wall clock (``time_scale``, simulated seconds per wall second,
+as ``robot.sim_controller.SimRig.time_scale``), so a board beside a time-scaled simulated
+controller drifts and streams per *simulated* second as it would in real time: the scene's
+clock is ``time_scale`` x the wall seconds since start, and the frame rate (``rate_hz`` and
+the baud-rate pacing) is multiplied by it.
 """
 
 from __future__ import annotations
@@ -58,13 +64,18 @@ class SimBoard:
         stamp_seq: bool = False,
         fault_rate: float = 0.0,
         link_path: str | Path | None = None,
+        time_scale: float = 1.0,
     ):
         """``rate_hz`` None: as fast as ``baud`` allows (~8 frames/s at 115200); ``baud``
         None or 0: no line-rate limit. ``stamp_seq`` writes the board's frame number (mod
         65536) into cell (20, 11) so a test can prove no frame was lost. ``fault_rate`` is
-        the chance per frame of one random injected fault."""
+        the chance per frame of one random injected fault. ``time_scale``: simulated seconds
+        per wall second; ``rate_hz`` and ``baud`` are per simulated second, so the wall frame
+        rate is ``time_scale`` times theirs."""
         if rate_hz is not None and rate_hz <= 0:
             raise ValueError("rate_hz must be > 0")
+        if not (np.isfinite(time_scale) and time_scale > 0):
+            raise ValueError("time_scale must be > 0")
         self.patch = patch
         wiring = patch.wiring
         if reverse_tx is not None:
@@ -78,6 +89,7 @@ class SimBoard:
         self.probe = probe or ProbeModel.named("finger" if touch_demo else "robot")
         self.rate_hz = rate_hz
         self.baud = baud or None
+        self.time_scale = float(time_scale)
         self.empty_zero = empty_zero
         self.touch_demo = touch_demo
         self.stamp_seq = stamp_seq
@@ -192,9 +204,10 @@ class SimBoard:
             self._inject_pending()
             line = self._next_line(now)
             self._send_frame(line)
-            interval = 1.0 / self.rate_hz if self.rate_hz else 0.0
+            # wall seconds per frame: the simulated rates run time_scale times faster
+            interval = 1.0 / (self.rate_hz * self.time_scale) if self.rate_hz else 0.0
             if self.baud:
-                interval = max(interval, len(line) * 10 / self.baud)
+                interval = max(interval, len(line) * 10 / (self.baud * self.time_scale))
             # Keep a steady rate, but never burst to catch up after a stall.
             next_t = max(next_t + interval, time.monotonic() - interval)
 
@@ -202,7 +215,7 @@ class SimBoard:
         """Write one frame; with baud pacing it trickles out in 64-byte USB CDC packets, so
         the line completes on the host one transmission time after the board sampled it."""
         packet = USB_PACKET if self.baud else len(line)
-        step = packet * 10 / self.baud if self.baud else 0.0
+        step = packet * 10 / (self.baud * self.time_scale) if self.baud else 0.0
         t0 = time.monotonic()
         for k, i in enumerate(range(0, len(line), packet)):
             delay = t0 + k * step - time.monotonic()
@@ -218,7 +231,7 @@ class SimBoard:
             self.frames_written += 1
 
     def _next_line(self, now: float) -> bytes:
-        t = now - self._t0
+        t = (now - self._t0) * self.time_scale  # scene (simulated) seconds since start
         if self.touch_demo:
             self.probe_state.set(*self._scripted_touch(t))
         x, y, force = self.probe_state.get()

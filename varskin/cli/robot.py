@@ -114,7 +114,8 @@ def check(
         )
         xy_mm = launch.plan.points_mm(launch.patch)
         for n, i in enumerate(picks, 1):
-            result = arm.touch(points_m[i], launch.touch)
+            # the driver's settle and dwell run on the host clock: scaled to a fast simulation
+            result = arm.touch(points_m[i], launch.arm_touch_spec())
             out(
                 f"touch {n}/{len(picks)} at patch ({xy_mm[i][0]:.1f}, {xy_mm[i][1]:.1f}) mm: "
                 f"contact z {result.contact_z_m:.4f} m, mean {result.mean_force_n:.2f} N, "
@@ -198,7 +199,9 @@ def default_arm_factory(launch: LaunchConfig, allow_motion: bool) -> Iterator[Ar
 
 def start_simulated_controller(launch: LaunchConfig):
     """The launch's simulated rig: the true skin where the registration says (plus the
-    configured registration error), parked above the patch inside the envelope."""
+    configured registration error), parked above the patch inside the envelope, running
+    ``sim.time_scale`` simulated seconds per wall second (drive it with
+    ``launch.arm_touch_spec()``)."""
     from robot.sim_controller import SimRig, SimulatedController
 
     centre = np.array([launch.patch.length_mm / 2, launch.patch.width_mm / 2])
@@ -212,5 +215,6 @@ def start_simulated_controller(launch: LaunchConfig):
         patch_length_mm=launch.patch.length_mm,
         patch_width_mm=launch.patch.width_mm,
         start_pose=(*park.tolist(), 0.0, float(np.pi), 0.0),
+        time_scale=launch.sim.time_scale,
     )
     return SimulatedController(rig, host=None, seed=launch.sim.seed).start()
