@@ -169,9 +169,15 @@ def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
     # the resumed run measured its second part anew (other noise), so: close, not equal
     assert abs(n_resumed - n_full) <= 4
     assert abs(rms_resumed - rms_full) < 0.4
-    d = final.xy() - full.xy()
-    both = np.isfinite(d).all(axis=1)
-    assert np.median(np.hypot(*d[both].T)) < 0.3  # the same answer within noise, sensor by sensor
+    # sensor by sensor, the two answers agree within their own error bars
+    a, b = final.by_name(), full.by_name()
+    outside = 0
+    for name, ea in a.items():
+        eb = b[name]
+        if ea.status == "ok" and eb.status == "ok":
+            sd = np.hypot(ea.sigma_mm, eb.sigma_mm)  # per axis, of the difference
+            outside += np.hypot(ea.x_mm - eb.x_mm, ea.y_mm - eb.y_mm) > 3 * sd
+    assert outside <= 2  # P(r > 3 sd) is about 1 % per sensor
 
 
 def _run_session(launch_path: Path, db: Path, fault, on_event):

@@ -61,6 +61,10 @@ class SessionSettings:
     window: WindowConfig = field(default_factory=WindowConfig)  # in simulated/real seconds
     pause_timeout_s: float = 600.0  # how long a protective stop may wait for its unlock
     board_timeout_s: float = 30.0  # how long an unplugged board may take to come back
+    # The estimate after each touch: "update" (fast, provisional: enough to watch) or "batch"
+    # (the converged solve of all logs so far, ~0.1 s: what the adaptive planner needs, since
+    # it chooses by the sigmas; benchmarks/adaptive_plan.py measured both).
+    live_estimate: str = "update"
 
 
 @dataclass(frozen=True)
@@ -161,6 +165,7 @@ class CalibrationSession:
         self._t0 = time.monotonic()
         # replay re-cuts point logs with exactly these windows
         self.store.set_meta("window", dataclasses.asdict(self.window))
+        self.store.set_meta("live_estimate", self.settings.live_estimate)
         stored = self.store.stored_logs()
         self._t_offset = (max(s.log.t_s for s in stored) + 1.0) if stored else 0.0
         touch = self._replay_history(stored)
@@ -195,6 +200,9 @@ class CalibrationSession:
             touch_points_mm=np.array([[o.x_mm, o.y_mm] for o in outcomes]).reshape(-1, 2),
         )
 
+    def _live(self, log) -> Predictions:
+        return live_estimate(self.localizer, log, self.settings.live_estimate)
+
     def _new_localizer(self, rest, rest_sd) -> Localizer:
         return Localizer(self.sensors, rest=rest, rest_sd=rest_sd, patch=self.rig.launch.patch)
 
@@ -216,7 +224,7 @@ class CalibrationSession:
                         f"({o.x_mm:g}, {o.y_mm:g}) mm but the planner now proposes "
                         f"({touch.x_mm:g}, {touch.y_mm:g}) mm; was the launch file changed?"
                     )
-                preds = self.localizer.update(logs[o.plan_index]) if o.ok else None
+                preds = self._live(logs[o.plan_index]) if o.ok else None
                 planned, touch = touch, None  # None if the plan ends here
                 touch = self.planner.send(TouchOutcome(planned, o.ok, preds))
         except StopIteration:
@@ -301,7 +309,7 @@ class CalibrationSession:
             if status == "ok":
                 log, n_base = log_and_n
                 aid = self._record(touch, attempt_no, "ok", "", t_start, result)
-                preds = self.localizer.update(log)
+                preds = self._live(log)
                 self.store.commit_touch(
                     Outcome(touch.index, touch.x_mm, touch.y_mm, touch.phase, True),
                     StoredLog(touch.index, aid, n_base, log),
@@ -420,6 +428,12 @@ class CalibrationSession:
         self.on_event(
             SessionEvent("resume", f"unlocked; retrying touch {touch.index}", touch.index)
         )
+
+
+def live_estimate(localizer: Localizer, log, mode: str) -> Predictions:
+    """The estimate after one more point log, as the session shows and stores it."""
+    fast = localizer.update(log)
+    return localizer.result() if mode == "batch" else fast
 
 
 def final_estimate(logs: PointLogs, method: str, patch) -> Predictions:

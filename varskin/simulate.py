@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from varskin.patch import Patch
-from varskin.pointlogs import PointLogs, average_samples
+from varskin.pointlogs import PointLog, PointLogs, average_samples
 from varskin.scene import ProbeModel, Scene, SceneParams
 
 FRAME_RATE_HZ = 8.0  # a Muca board sending ASCII at 115200 baud manages 7-9 frames/s
@@ -107,4 +107,41 @@ def simulate_session(
         samples=np.concatenate(rows),
         t_s=np.concatenate(times),
         force_n=np.concatenate(forces),
+    )
+
+
+def simulate_touch(
+    scene: Scene,
+    probe: ProbeModel,
+    x_mm: float,
+    y_mm: float,
+    t_s: float,
+    rng: np.random.Generator,
+    n_samples: int = 8,
+    touch: int = 1,
+    rest: np.ndarray | None = None,
+) -> PointLog:
+    """One touch at the commanded point, averaged into its point log.
+
+    For sessions planned touch by touch (the next point depends on the last result), where
+    ``simulate_session``'s fixed list of points does not fit. The physics and the draws
+    are ``simulate_session``'s: the probe lands with its placement error and presses with
+    its force variation; ``n_samples`` frames at ``FRAME_RATE_HZ`` start at ``t_s``. The
+    log records the commanded point; values are relative to ``rest`` when it is given
+    (the mean of a no-contact baseline, as ``average_samples`` does).
+    """
+    px, py = np.array([x_mm, y_mm], float) + rng.normal(0, probe.placement_sd_mm, 2)
+    force = probe.nominal_force_n * float(np.exp(rng.normal(0, probe.gain_sd)))
+    ft = t_s + np.arange(n_samples) / FRAME_RATE_HZ
+    frames = scene.sample(px, py, force, probe, ft, rng)
+    values = frames.mean(axis=0)
+    return PointLog(
+        touch=touch,
+        x_mm=float(x_mm),
+        y_mm=float(y_mm),
+        values=values if rest is None else values - rest,
+        n_samples=n_samples,
+        sample_sd=frames.std(axis=0, ddof=1) if n_samples > 1 else None,
+        t_s=float(ft.mean()),
+        force_n=force,
     )

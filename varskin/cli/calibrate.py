@@ -173,7 +173,12 @@ def run(args: argparse.Namespace) -> int:
             f"{launch.source}: drives a REAL robot; pass --real once the workspace is clear"
         )
     window = WindowConfig()
-    settings = SessionSettings(method=method, max_retries=args.max_retries, window=window)
+    settings = SessionSettings(
+        method=method,
+        max_retries=args.max_retries,
+        window=window,
+        live_estimate="batch" if plan_settings["planner"] == "adaptive" else "update",
+    )
     print(
         f"launch: {launch.source} ({'simulated rig' if launch.simulated else 'REAL robot ' + launch.robot.host}), "
         f"patch {launch.patch.name}, planner {plan_settings['planner']}, session {out_path}",
