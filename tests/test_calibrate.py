@@ -353,3 +353,32 @@ def test_live_view_draws_in_place_on_a_terminal_and_lines_in_a_log():
     assert "\x1b" not in log.getvalue()
     assert len(lines) == 3 and "2/4" in lines[0] and "4/4" in lines[1]
     assert lines[2] == "PAUSED at touch 3: protective stop"
+
+
+def test_a_session_stopped_by_a_fault_says_how_to_resume(tmp_path, capsys, monkeypatch):
+    """The CLI's wiring: a fault that ends the session is one line naming the fault, and
+    the same line says how to continue; the session file is left ready for --resume."""
+    import contextlib
+    import types
+
+    from varskin.errors import ConnectionLost
+
+    @contextlib.contextmanager
+    def fake_rig(launch, allow_real=False):
+        yield types.SimpleNamespace(time_scale=8.0, truth_xy=None, frame_latency_s=0.0)
+
+    def lost(self):
+        raise ConnectionLost("UR 127.0.0.9: connection lost during descent")
+
+    monkeypatch.setattr("varskin.rig.open_rig", fake_rig)
+    monkeypatch.setattr("varskin.session.CalibrationSession.__init__", lambda self, *a, **k: None)
+    monkeypatch.setattr("varskin.session.CalibrationSession.run", lost)
+    db = tmp_path / "stopped.db"
+    assert main(["calibrate", str(write_launch(tmp_path / "l.yaml")), "-o", str(db)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == (
+        "varskin: error: UR 127.0.0.9: connection lost during descent; the session is saved: "
+        f"continue it with varskin calibrate --resume {db}"
+    )
+    with SessionStore.open(db) as store:
+        assert store.meta()["status"] == "running" and store.n_point_logs() == 0

@@ -51,6 +51,7 @@ from varskin.touch_window import (
 )
 
 Planner = Generator[PlannedTouch, "TouchOutcome | None", None]
+MAX_STOPS_PER_TOUCH = 2  # protective stops (each unlocked by a person) before giving up
 
 
 @dataclass(frozen=True)
@@ -273,7 +274,7 @@ class CalibrationSession:
     # --- one touch ----------------------------------------------------------------------
 
     def _do_touch(self, touch: PlannedTouch) -> TouchOutcome:
-        failures = 0
+        failures = stops = 0
         attempt_no = len(self.store.attempts(touch.index))
         point_m = self.rig.to_base([touch.x_mm, touch.y_mm])
         while True:
@@ -296,6 +297,13 @@ class CalibrationSession:
             except ProtectiveStop as e:
                 self._record(touch, attempt_no, "protective_stop", str(e), t_start, result)
                 self.store.commit()
+                stops += 1
+                if stops > MAX_STOPS_PER_TOUCH:
+                    # the same touch keeps stopping the arm: a person must look at the rig
+                    raise ProtectiveStop(
+                        f"touch {touch.index} protective-stopped the arm {stops} times; "
+                        f"stopping the session"
+                    ) from None
                 self._pause(touch, e)
                 continue
             except BaseException as e:
@@ -399,8 +407,7 @@ class CalibrationSession:
     def _wait_for_board(self) -> None:
         if not self.rig.recorder.wait_connected(self.settings.board_timeout_s):
             raise BoardDisconnected(
-                f"{self.rig.recorder.url}: board gone for {self.settings.board_timeout_s:g} s; "
-                f"the session is saved in {self.store.path} (resume with --resume)"
+                f"{self.rig.recorder.url}: board gone for {self.settings.board_timeout_s:g} s"
             )
 
     def _pause(self, touch: PlannedTouch, cause: ProtectiveStop) -> None:
@@ -418,8 +425,7 @@ class CalibrationSession:
         while arm.status().protective_stop:
             if time.monotonic() > deadline:
                 raise ProtectiveStop(
-                    f"protective stop not cleared within {self.settings.pause_timeout_s:g} s; "
-                    f"the session is saved in {self.store.path} (resume with --resume)"
+                    f"protective stop not cleared within {self.settings.pause_timeout_s:g} s"
                 )
             self._save_frames()
             time.sleep(0.1)

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from robot.launch import LaunchConfig, load_launch
-from varskin.errors import InputError, StoreError
+from varskin.errors import InputError, StoreError, VarskinError
 from varskin.localization import DEFAULT_METHOD, METHODS
 from varskin.patch import config_dir
 
@@ -207,11 +207,22 @@ def run(args: argparse.Namespace) -> int:
             planner = make_planner(launch, plan_settings)
             total = _plan_length(launch, plan_settings)
             session = CalibrationSession(rig, store, planner, settings, on_event=LiveView(total))
-            result = session.run()
+            try:
+                result = session.run()
+            except VarskinError as e:
+                # The store holds every finished touch: say how to carry on, in the same line.
+                raise type(e)(f"{e}; {_resume_hint(out_path)}") from None
+            except KeyboardInterrupt:
+                print(f"varskin: interrupted; {_resume_hint(out_path)}", file=sys.stderr)
+                raise
             _finish(store, result, launch, rig, out_path)
         finally:
             store.close()
     return 0
+
+
+def _resume_hint(out_path: Path) -> str:
+    return f"the session is saved: continue it with varskin calibrate --resume {out_path}"
 
 
 def _plan_length(launch: LaunchConfig, plan: dict) -> int:
