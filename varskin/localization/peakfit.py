@@ -67,12 +67,6 @@ WEAK = "weak"  # peak far below the other sensors': not probed near it, or damag
 # 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
 HULL_PRIOR = 1.5
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
-WEAK_OF_MAX = 0.12  # ... so the weakest real peak is above ~1/7 of the strongest
-# A fitted footprint under half the probe spacing is seen by one probe at most: it cannot be
-# resolved, and mid-session it is how a wire ridge (the probe ran along the sensor's wire,
-# far from the sensor) dresses up as a peak. 0.1 let those through as "ok" 140 mm off.
-MIN_WIDTH_SPACINGS = 0.5
-MAX_WIDTH_SHARED = 3.0  # a footprint 3x the probe's (the sensors' median) is a plateau
 
 
 @contextmanager
@@ -848,8 +842,8 @@ def _predictions(loc: Localizer) -> Predictions:
         & (f.n_eff >= 6.0)
         & ~weak_model
         & (moved <= np.maximum(2.0 * w, 2.0 * h))
-        & (w > MIN_WIDTH_SPACINGS * h)
-        & (w < _max_width(loc, h))
+        & (w > 0.1 * h)
+        & (w < 20.0 * h)
     )
     for i in range(n):
         if not f.fitted[i] or valid_counts[i] < 3:
@@ -874,10 +868,6 @@ def _predictions(loc: Localizer) -> Predictions:
     ok = status == OK
     if ok.sum() >= 3:
         ref = WEAK_FRACTION * np.median(raw_amp[ok])
-        # Mid-session most "located" sensors can be ridges (the probe only ever ran along
-        # their wires), which drags the median down with them; the strongest real peak
-        # bounds the weakest real one (peaks span ~7x) whatever the mix.
-        ref = max(ref, WEAK_OF_MAX * np.max(raw_amp[ok]))
         weak = ok & (raw_amp < ref)
         status[weak] = WEAK
     ok = status == OK
@@ -908,12 +898,6 @@ def _predictions(loc: Localizer) -> Predictions:
         status[placed] = OK
     sigma = sd * R95_PER_AXIS_SD / 2.0
     return _build(loc, status, xy, sigma, snr, params)
-
-
-def _max_width(loc: Localizer, h: float) -> float:
-    if loc.shared_lw is None:
-        return 20.0 * h
-    return MAX_WIDTH_SHARED * float(np.exp(np.mean(loc.shared_lw)))
 
 
 def _window_members(loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
