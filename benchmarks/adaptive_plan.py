@@ -359,6 +359,19 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
     return lines
 
 
+def _scatter_grids(ax, x: np.ndarray, rms: np.ndarray, all_located: np.ndarray) -> None:
+    """Uniform grids: filled where every sensor was located, hollow where not."""
+    ax.scatter(x[all_located], rms[all_located], color="C0", s=18, label="uniform, all located")
+    ax.scatter(
+        x[~all_located],
+        rms[~all_located],
+        facecolor="none",
+        edgecolor="C0",
+        s=18,
+        label="uniform, not all",
+    )
+
+
 def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     import warnings
 
@@ -400,15 +413,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     fig, axes = plt.subplots(1, panels, figsize=(5.0 * panels, 4.2))
     ax = axes[0]
     ax.plot(ks, a_rms, "-", color="C1", label="adaptive (median over seeds)")
-    ax.scatter(gx[g_all], g_rms[g_all], color="C0", s=18, label="uniform grid, all located")
-    ax.scatter(
-        gx[~g_all],
-        g_rms[~g_all],
-        facecolor="none",
-        edgecolor="C0",
-        s=18,
-        label="uniform grid, not all",
-    )
+    _scatter_grids(ax, gx, g_rms, g_all)
     ax.axhline(GOAL_RMS_MM, color="grey", ls=":", lw=1)
     ax.set_xlabel("touches")
     ax.set_ylabel("RMS error of located sensors (mm)")
@@ -426,17 +431,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     if rig.available:
         ax = axes[2]
         ax.plot(a_time / 60.0, a_rms, "-", color="C1", label="adaptive")
-        ax.scatter(
-            g_time[g_all] / 60.0, g_rms[g_all], color="C0", s=18, label="uniform, all located"
-        )
-        ax.scatter(
-            g_time[~g_all] / 60.0,
-            g_rms[~g_all],
-            facecolor="none",
-            edgecolor="C0",
-            s=18,
-            label="uniform, not all",
-        )
+        _scatter_grids(ax, g_time / 60.0, g_rms, g_all)
         ax.axhline(GOAL_RMS_MM, color="grey", ls=":", lw=1)
         ax.set_xlabel("estimated rig time (min)")
         ax.set_ylabel("RMS error of located sensors (mm)")

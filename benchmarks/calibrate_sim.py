@@ -42,13 +42,11 @@ def one_run(tmp: Path, i: int, launch: str | None) -> dict:
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wall = time.perf_counter() - t0
-    from varskin.cli.replay import session_patch
-
     with SessionStore.open(db) as store:
         meta = store.meta()
         logs = store.point_logs()
         attempts = store.attempts()
-        patch = session_patch(meta, str(db))
+        patch = store.patch()
     truth = np.asarray(meta["truth_xy"], float)
     peak, t_peak = _timed(final_estimate, logs, "peakfit", patch)
     paper, t_paper = _timed(final_estimate, logs, "paper", patch)

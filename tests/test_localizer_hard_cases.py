@@ -271,4 +271,3 @@ def test_sensor_probed_first_while_its_offset_falls(patch_a):
     (0.4-1.3 mm on seeds 1, 2, 4) but often beyond its error bar (sigma 0.2-0.3 mm)."""
     est, e = _probed_first_while_drifting(patch_a, 2, -120.0, i=1)
     assert est.status != OK or e <= 2.0 * est.sigma_mm
-

@@ -14,6 +14,7 @@ import numpy as np
 from varskin.patch import Patch
 from varskin.plots import plot_point_log_maps, plot_predictions, plot_uncertainty_vs_touches
 from varskin.predictions import OK, Predictions
+from varskin.session import rms_error_mm
 from varskin.store import SessionStore
 
 
@@ -36,9 +37,7 @@ def convergence(store: SessionStore, truth_xy: np.ndarray | None = None) -> dict
         worst.append(max(sig) if sig else np.nan)
         located.append(sum(e.status == OK for e in p.estimates))
         if truth_xy is not None:
-            ok = np.array([e.status == OK for e in p.estimates])
-            d = p.xy()[ok] - truth_xy[ok]
-            rms.append(float(np.sqrt((d**2).sum(axis=1).mean())) if ok.any() else np.nan)
+            rms.append(rms_error_mm(p, truth_xy)[0])
     out = {
         "n_logs": n,
         "sigma_median": np.array(med, float),

@@ -126,10 +126,6 @@ class _FrameTap:
                 self._arrived.wait(left)
         return True
 
-    def count(self) -> int:
-        with self._lock:
-            return len(self._frames)
-
 
 class CalibrationSession:
     def __init__(
@@ -156,7 +152,6 @@ class CalibrationSession:
         self.localizer: Localizer | None = None
         self._t0 = 0.0
         self._t_offset = 0.0
-        self.n_attempts = 0
 
     # --- the loop -----------------------------------------------------------------------
 
@@ -175,10 +170,8 @@ class CalibrationSession:
         rest, rest_sd, _ = self.store.baseline() or (None, None, 0)
         if self.localizer is None:
             self.localizer = self._new_localizer(rest, rest_sd)
-        failed = sum(not o.ok for o in self.store.outcomes())
         while touch is not None:
             outcome = self._do_touch(touch)
-            failed += not outcome.ok
             try:
                 touch = self.planner.send(outcome)
             except StopIteration:
@@ -195,7 +188,7 @@ class CalibrationSession:
             predictions=final,
             logs=logs,
             n_planned=len(outcomes),
-            n_failed=failed,
+            n_failed=sum(not o.ok for o in outcomes),
             n_attempts=len(self.store.attempts()),
             wall_s=time.monotonic() - started,
             touch_points_mm=np.array([[o.x_mm, o.y_mm] for o in outcomes]).reshape(-1, 2),
@@ -246,20 +239,19 @@ class CalibrationSession:
         arm = self.rig.arm
         arm.move_above(self.rig.to_base([first.x_mm, first.y_mm]), self.spec.clearance_m)
         self._save_frames()
+        self._recent = []
         n = self.settings.baseline_frames
         period = self.window.max_frame_interval_s
         deadline = time.monotonic() + n * period + self.settings.board_timeout_s
-        while self._tap.count() < n:
+        while len(self._recent) < n:
             if time.monotonic() > deadline:
                 raise BoardDisconnected(
-                    f"{self.rig.recorder.url}: only {self._tap.count()} of {n} baseline frames"
+                    f"{self.rig.recorder.url}: only {len(self._recent)} of {n} baseline frames"
                 )
             time.sleep(0.01)
-        frames, gaps = self._tap.drain()
-        values = np.array([self.rig.cellmap.values(f) for f in frames[:n]])
+            self._save_frames()
+        values = np.array([self.rig.cellmap.values(f) for f in self._recent[:n]])
         rest, rest_sd = robust_mean(values)
-        self.store.add_frames(frames)
-        self.store.add_gaps(gaps)
         self.store.write_baseline(self.sensors, rest, np.maximum(rest_sd, 1e-3), len(values))
         self.on_event(SessionEvent("baseline", f"rest values from {len(values)} frames"))
 
@@ -381,7 +373,6 @@ class CalibrationSession:
         t_start: float | None,
         r: TouchResult | None,
     ) -> int:
-        self.n_attempts += 1
         seqs = [f.seq for f in self._recent]
         return self.store.add_attempt(
             Attempt(

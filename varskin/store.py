@@ -22,9 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from varskin.board.frame import N_RX, N_TX, Frame, Gap
 from varskin.errors import StoreError
+from varskin.patch import Patch, patch_from_dict
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import Predictions, SensorEstimate
 
@@ -99,6 +101,17 @@ class Outcome:
     y_mm: float
     phase: str
     ok: bool
+
+
+_SELECT_ATTEMPTS = (
+    "SELECT plan_index, attempt, x_mm, y_mm, phase, status, message, t_start, t_contact, "
+    "t_settled, t_release, t_end, peak_force_n, mean_force_n, seq_first, seq_last, id "
+    "FROM attempts"
+)  # in the field order of ``Attempt``
+
+
+def _frame(seq: int, t: float, cells: bytes) -> Frame:
+    return Frame(int(seq), float(t), np.frombuffer(cells, "<u2").reshape(N_TX, N_RX).copy())
 
 
 def _f64(a: np.ndarray) -> bytes:
@@ -285,6 +298,17 @@ class SessionStore:
     def sensors(self) -> tuple[str, ...]:
         return tuple(self.meta()["sensors"])  # type: ignore[arg-type]
 
+    def patch(self) -> Patch:
+        """The patch exactly as the session ran it (its YAML is kept in the file), so a
+        session replays without the checkout it was recorded with."""
+        meta = self.meta()
+        if "patch_yaml" not in meta:
+            raise StoreError(f"{self.path}: the session file holds no patch")
+        patch = patch_from_dict(yaml.safe_load(str(meta["patch_yaml"])), f"{self.path}:patch")
+        if tuple(patch.names) != tuple(meta["sensors"]):  # type: ignore[arg-type]
+            raise StoreError(f"{self.path}: its stored patch does not list the session's sensors")
+        return patch
+
     def baseline(self) -> tuple[np.ndarray, np.ndarray, int] | None:
         rows = self._conn.execute("SELECT rest, rest_sd, n FROM baseline ORDER BY idx").fetchall()
         if not rows:
@@ -332,11 +356,7 @@ class SessionStore:
         )
 
     def attempts(self, plan_index: int | None = None) -> list[Attempt]:
-        sql = (
-            "SELECT plan_index, attempt, x_mm, y_mm, phase, status, message, t_start, t_contact, "
-            "t_settled, t_release, t_end, peak_force_n, mean_force_n, seq_first, seq_last, id "
-            "FROM attempts"
-        )
+        sql = _SELECT_ATTEMPTS
         args: tuple = ()
         if plan_index is not None:
             sql += " WHERE plan_index=?"
@@ -344,28 +364,21 @@ class SessionStore:
         return [Attempt(*row) for row in self._conn.execute(sql + " ORDER BY id", args)]
 
     def attempt(self, attempt_id: int) -> Attempt:
-        row = self._conn.execute(
-            "SELECT plan_index, attempt, x_mm, y_mm, phase, status, message, t_start, t_contact, "
-            "t_settled, t_release, t_end, peak_force_n, mean_force_n, seq_first, seq_last, id "
-            "FROM attempts WHERE id=?",
-            (attempt_id,),
-        ).fetchone()
+        row = self._conn.execute(_SELECT_ATTEMPTS + " WHERE id=?", (attempt_id,)).fetchone()
         if row is None:
             raise StoreError(f"{self.path}: no attempt {attempt_id}")
         return Attempt(*row)
 
     def frames_by_seq(self, first: int, last: int) -> list[Frame]:
-        return [
-            Frame(int(seq), float(t), np.frombuffer(b, "<u2").reshape(N_TX, N_RX).copy())
-            for seq, t, b in self._conn.execute(
-                "SELECT seq, t, cells FROM frames WHERE seq >= ? AND seq <= ? ORDER BY seq",
-                (first, last),
-            )
-        ]
+        rows = self._conn.execute(
+            "SELECT seq, t, cells FROM frames WHERE seq >= ? AND seq <= ? ORDER BY seq",
+            (first, last),
+        )
+        return [_frame(*row) for row in rows]
 
     def frames(self) -> Iterator[Frame]:
-        for seq, t, b in self._conn.execute("SELECT seq, t, cells FROM frames ORDER BY seq"):
-            yield Frame(int(seq), float(t), np.frombuffer(b, "<u2").reshape(N_TX, N_RX).copy())
+        for row in self._conn.execute("SELECT seq, t, cells FROM frames ORDER BY seq"):
+            yield _frame(*row)
 
     def n_frames(self) -> int:
         return int(self._conn.execute("SELECT COUNT(*) FROM frames").fetchone()[0])

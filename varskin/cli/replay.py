@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
 
     with SessionStore.open(args.session) as store:
         meta = store.meta()
-        patch = session_patch(meta, args.session)
+        patch = store.patch()
         r = replay(store, patch, args.method)
         print(f"{args.session}: {r.n_logs} point logs, method {r.predictions.method}")
         recut = (
@@ -80,16 +80,3 @@ def run(args: argparse.Namespace) -> int:
             )  # fmt: skip
             print(f"report: {files.predictions_csv.parent}/", file=sys.stderr)
     return 0
-
-
-def session_patch(meta: dict, session: str):
-    """The patch exactly as the session ran it (its YAML is stored in the session file)."""
-    import yaml
-
-    from varskin.errors import StoreError
-    from varskin.patch import patch_from_dict
-
-    patch = patch_from_dict(yaml.safe_load(str(meta["patch_yaml"])), f"{session}:patch")
-    if tuple(patch.names) != tuple(meta["sensors"]):
-        raise StoreError(f"{session}: its stored patch does not list the session's sensors")
-    return patch
