@@ -35,11 +35,8 @@ import numpy as np
 
 from robot.arm import TouchSpec
 from robot.safety import Envelope
+from robot.ur import CONTACT_ACCEL_M_S2, FORCE_MODE_QUIET_S, STOP_DECEL_M_S2
 
-# Fixed parts of URArm.touch (robot/ur.py); change them together.
-CONTACT_ACCEL_M_S2 = 0.5  # URArm.contact_accel_m_s2 default: the descent's acceleration
-CONTACT_STOP_DECEL_M_S2 = 3.0  # the contact stop (the script's stopl(3), URArm's stopL(3.0))
-FORCE_MODE_QUIET_S = 0.02  # URArm sleeps this long without motion before forceMode
 # Blocking ur-rtde commands per touch phase (URArm.touch / move_above / retract):
 DESCENT_COMMANDS = 5.5  # zeroFtSensor, startContactDetection, moveL async, stopContactDetection,
 #                        stopL, + 1.5 readContactDetection polls (the one that sees contact and
@@ -128,7 +125,7 @@ def estimate_touch_time(
     else:  # contact before cruise speed: the speed reached is sqrt(2 a d)
         v = math.sqrt(2 * a * down)
         descent = v / a
-    descent += v / CONTACT_STOP_DECEL_M_S2 + DESCENT_COMMANDS * command_s
+    descent += v / STOP_DECEL_M_S2 + DESCENT_COMMANDS * command_s
     hold = FORCE_MODE_QUIET_S + spec.settle_s + spec.dwell_s + HOLD_COMMANDS * command_s
     up = spec.clearance_m + press_depth_m
     retract = (

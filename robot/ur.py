@@ -64,6 +64,10 @@ _ABANDONED: list[object] = []
 _DOWN = np.array([0.0, 0.0, -1.0])
 RTDE_PORT = 30004
 DASHBOARD_PORT = 29999
+# Fixed parts of the touch, shared with robot.rig_time's model of it.
+CONTACT_ACCEL_M_S2 = 0.5  # the descent's acceleration (default of URArm.contact_accel_m_s2)
+STOP_DECEL_M_S2 = 3.0  # stopL: after contact, and in a safe stop
+FORCE_MODE_QUIET_S = 0.02  # without motion before forceMode
 RUNTIME_PLAYING = 2  # RTDE runtime_state
 RUNTIME_PAUSED = 4
 
@@ -79,7 +83,7 @@ class URArm:
         call_timeout_s: float = 5.0,
         connect_timeout_s: float = 10.0,
         frequency_hz: float = 125.0,
-        contact_accel_m_s2: float = 0.5,
+        contact_accel_m_s2: float = CONTACT_ACCEL_M_S2,
         damping: float = 0.05,
         gain_scaling: float = 0.5,
     ) -> None:
@@ -475,7 +479,7 @@ class URArm:
                 self._best_effort("stopContactDetection", self._ctrl.stopContactDetection)
                 raise
             self._call("stopContactDetection", self._ctrl.stopContactDetection, check=False)
-            self._call("stopL", self._ctrl.stopL, 3.0, check=False)
+            self._call("stopL", self._ctrl.stopL, STOP_DECEL_M_S2, check=False)
             if not detected:
                 raise NoContact(
                     f"UR {self.host}: no contact down to the floor {spec.max_depth_m * 1000:g} mm below "
@@ -488,7 +492,7 @@ class URArm:
             self._call(
                 "forceModeSetGainScaling", self._ctrl.forceModeSetGainScaling, self.gain_scaling
             )
-            time.sleep(0.02)
+            time.sleep(FORCE_MODE_QUIET_S)
             limits = [
                 0.01,
                 0.01,
@@ -553,7 +557,7 @@ class URArm:
         if self._in_force_mode:
             self._best_effort("forceModeStop", self._ctrl.forceModeStop)
             self._in_force_mode = False
-        self._best_effort("stopL", self._ctrl.stopL, 3.0)
+        self._best_effort("stopL", self._ctrl.stopL, STOP_DECEL_M_S2)
 
     def _retract_after(self, err: BaseException | None) -> None:
         """The retract of ``finally``: always attempted; its failure never hides ``err``."""
