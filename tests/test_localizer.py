@@ -180,6 +180,50 @@ def test_incremental_order_does_not_change_the_result(patch_a):
     assert np.nanmax(np.hypot(*(shuffled.xy() - batch.xy()).T)) <= 1e-9
 
 
+def _distance(a, b) -> np.ndarray:
+    d = np.hypot(*(a.xy() - b.xy()).T)
+    return d[np.isfinite(d)]
+
+
+def test_joint_solver_settles_where_alternation_crawls(patch_b, monkeypatch):
+    """A finger session: 4 alternations are far from where 40 go; 8 joint rounds are not."""
+    logs = session(patch_b, "finger", 0).point_logs()
+    few = {}
+    for solver, rounds in (("alternate", 4), ("joint", 8)):
+        few[solver] = peakfit.localize(logs, patch=patch_b, solver=solver)
+        monkeypatch.setitem(peakfit.SOLVER_ROUNDS, solver, 40)
+        many = peakfit.localize(logs, patch=patch_b, solver=solver)
+        monkeypatch.setitem(peakfit.SOLVER_ROUNDS, solver, rounds)
+        few[solver] = (few[solver], many)
+    crawl = _distance(*few["alternate"])
+    settled = _distance(*few["joint"])
+    assert np.median(crawl) > 0.05 and crawl.max() > 0.3, (np.median(crawl), crawl.max())
+    assert np.median(settled) <= 0.03, np.median(settled)
+    assert settled.max() <= 0.1, settled.max()
+
+
+def test_joint_solver_is_more_accurate_with_finger_touches(patch_a, patch_b):
+    """Pooled over both patches and 3 seeds: finger RMS at least 15% lower, robot no worse."""
+    pooled = {}
+    for probe in ("finger", "robot"):
+        for solver in ("alternate", "joint"):
+            e = []
+            for patch in (patch_a, patch_b):
+                for seed in (0, 1, 2):
+                    s = session(patch, probe, seed)
+                    pred = peakfit.localize(s.point_logs(), patch=patch, solver=solver)
+                    e.append(errors(pred, s.truth))
+            pooled[probe, solver] = rms(np.concatenate(e))
+    assert pooled["finger", "joint"] <= 0.85 * pooled["finger", "alternate"], pooled
+    assert pooled["robot", "joint"] <= 1.1 * pooled["robot", "alternate"], pooled
+
+
+def test_unknown_solver_is_an_input_error(patch_b):
+    logs = session(patch_b, "robot", 0, 10, 3).point_logs()
+    with pytest.raises(InputError, match="solver must be one of joint, alternate"):
+        localize(logs, solver="newton")
+
+
 def test_unknown_parameter_is_an_input_error(patch_b):
     logs = session(patch_b, "robot", 0, 10, 3).point_logs()
     with pytest.raises(InputError, match="eta"):

@@ -48,6 +48,13 @@ def register(subparsers) -> None:
         "default the bounding box of the probe locations",
     )
     p.add_argument(
+        "--solver",
+        choices=["alternate", "joint"],
+        help="peakfit: how the batch solve couples the sensors' fits with the touches' gain "
+        "and placement: alternate between them, or take joint Gauss-Newton steps (converges; "
+        "more accurate with finger touches, 3-5x slower); default alternate",
+    )
+    p.add_argument(
         "--patch",
         metavar="PATCH",
         help="patch YAML or builtin name (patch_a, patch_b): its TX/RX wiring turns on peakfit's "
@@ -93,7 +100,11 @@ def writing():
 
 def method_params(args) -> dict:
     """Only the parameters the user actually set."""
-    return {k: getattr(args, k) for k in ("eta", "ppcm", "area") if getattr(args, k) is not None}
+    return {
+        k: getattr(args, k)
+        for k in ("eta", "ppcm", "area", "solver")
+        if getattr(args, k) is not None
+    }
 
 
 def print_warnings(logs) -> None:

@@ -163,6 +163,59 @@ def normal_equations(w: np.ndarray, J: np.ndarray, r: np.ndarray):
     return Jw @ Jt.transpose(0, 2, 1), (Jw * r.T[:, None, :]).sum(axis=2)
 
 
+def sensor_priors(
+    S: int, s: FitSettings, width_mean: np.ndarray | None, lw_start: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gaussian priors of every sensor's parameters: precision Q (S,P,P) and mean (S,P).
+
+    Drift curvature ~ 0, wire ridges small, log widths near ``width_mean`` (the probe's
+    footprint, shared by all sensors) or, without it, weakly near ``lw_start``. The floor
+    slope's prior is heavy-tailed (Cauchy) and lives in ``prior_cost_of`` and
+    ``prior_hessian_of``: a gentle drift is shrunk towards none, but a sensor whose data
+    clearly show a fast drift (probed first while its offset still settles) is not forced to
+    explain it by moving its peak. The curvature keeps a Gaussian prior: a free curved floor
+    could form a hump in time that stands in for the peak.
+    """
+    Q = np.zeros((S, N_PARAMS, N_PARAMS))
+    Q[:, B2, B2] = 1.0 / s.drift_curve_prior_sd**2
+    Q[:, CRX, CRX] = Q[:, CTX, CTX] = 1.0 / s.ridge_prior_sd**2
+    mu = np.zeros((S, N_PARAMS))
+    if width_mean is None:
+        mean_w = np.zeros(N_PARAMS)
+        mean_w[[LW, LWY]] = 0.5
+        aspect = np.zeros(N_PARAMS)
+        aspect[LW], aspect[LWY] = 1.0, -1.0
+        Q += (
+            np.outer(mean_w, mean_w) / s.width_prior_sd**2
+            + np.outer(aspect, aspect) / s.aspect_prior_sd**2
+        )[None]
+        mu[:, LW] = lw_start
+        mu[:, LWY] = lw_start
+    else:
+        Q[:, LW, LW] = Q[:, LWY, LWY] = 1.0 / s.shared_width_sd**2
+        mu[:, LW] = width_mean[:, 0]
+        mu[:, LWY] = width_mean[:, 1]
+    return Q, mu
+
+
+def _drift_z(th: np.ndarray, s: FitSettings) -> np.ndarray:
+    return th[:, B1] / (s.drift_prior_sd * s.drift_prior_tail)
+
+
+def prior_cost_of(th: np.ndarray, Q: np.ndarray, mu: np.ndarray, s: FitSettings) -> np.ndarray:
+    """Prior cost per sensor (S,): the Gaussian part plus the Cauchy floor-slope tail."""
+    d = th - mu
+    tail = s.drift_prior_tail**2 * np.log1p(_drift_z(th, s) ** 2)
+    return np.einsum("sp,spq,sq->s", d, Q, d) + tail
+
+
+def prior_hessian_of(th: np.ndarray, Q: np.ndarray, s: FitSettings) -> np.ndarray:
+    """IRLS form of the priors: the Cauchy slope prior as a Gaussian weighted at ``th``."""
+    Qi = Q.copy()
+    Qi[:, B1, B1] = 1.0 / (1.0 + _drift_z(th, s) ** 2) / s.drift_prior_sd**2
+    return Qi
+
+
 @dataclass
 class FitResult:
     theta: np.ndarray  # (S, N_PARAMS)
@@ -233,47 +286,14 @@ def fit(
     active = np.ones(S, bool)
     converged = np.zeros(S, bool)
     last_step = np.full(S, np.inf)
-    # Gaussian priors per sensor: drift slope and curvature ~ 0; log widths near ``width_mean``
-    # (the probe's footprint, shared by all sensors) or, without it, weakly near the start.
-    Q = np.zeros((S, N_PARAMS, N_PARAMS))
-    # The floor slope gets a heavy-tailed (Cauchy) prior, handled apart from Q: a gentle
-    # drift is shrunk towards none, but a sensor whose data clearly show a fast drift
-    # (probed first while its offset still settles) is not forced to explain it by moving
-    # its peak. The curvature keeps a Gaussian prior: a free curved floor could form a
-    # hump in time that stands in for the peak.
-    Q[:, B2, B2] = 1.0 / s.drift_curve_prior_sd**2
-    Q[:, CRX, CRX] = Q[:, CTX, CTX] = 1.0 / s.ridge_prior_sd**2
     rho = ridge_width
-    mu = np.zeros((S, N_PARAMS))
-    if width_mean is None:
-        mean_w = np.zeros(N_PARAMS)
-        mean_w[[LW, LWY]] = 0.5
-        aspect = np.zeros(N_PARAMS)
-        aspect[LW], aspect[LWY] = 1.0, -1.0
-        Q += (
-            np.outer(mean_w, mean_w) / s.width_prior_sd**2
-            + np.outer(aspect, aspect) / s.aspect_prior_sd**2
-        )[None]
-        mu[:, LW] = lw_prior
-        mu[:, LWY] = lw_prior
-    else:
-        Q[:, LW, LW] = Q[:, LWY, LWY] = 1.0 / s.shared_width_sd**2
-        mu[:, LW] = width_mean[:, 0]
-        mu[:, LWY] = width_mean[:, 1]
-
-    def drift_z(th):
-        return th[:, B1] / (s.drift_prior_sd * s.drift_prior_tail)
+    Q, mu = sensor_priors(S, s, width_mean, lw_prior)
 
     def prior_cost(th, cols):
-        d = th - mu[cols]
-        tail = s.drift_prior_tail**2 * np.log1p(drift_z(th) ** 2)
-        return np.einsum("sp,spq,sq->s", d, Q[cols], d) + tail
+        return prior_cost_of(th, Q[cols], mu[cols], s)
 
     def prior_hessian(th, cols):
-        # IRLS form of the Cauchy prior: a Gaussian with the weight at the current value.
-        Qi = Q[cols].copy()
-        Qi[:, B1, B1] = 1.0 / (1.0 + drift_z(th) ** 2) / s.drift_prior_sd**2
-        return Qi
+        return prior_hessian_of(th, Q[cols], s)
 
     def weights_for(th, res, sc, cols):
         win = window(P[:, cols], th, min_radius, s) * vf[:, cols]

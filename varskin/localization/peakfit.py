@@ -20,6 +20,7 @@ import numpy as np
 
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
+from varskin.localization._joint import joint_step
 from varskin.localization._layout_prior import shrink_to_wires
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog, PointLogs
@@ -32,6 +33,9 @@ NAME = "peakfit"
 R95_PER_AXIS_SD = math.sqrt(2.0 * math.log(20.0))
 
 POLISH_ROUNDS = 4  # alternations of touch nuisances and sensor fits in a batch solve
+# Rounds of a batch solve per solver; a joint round also takes JOINT_STEPS joint steps.
+SOLVER_ROUNDS = {"joint": 8, "alternate": POLISH_ROUNDS}
+JOINT_STEPS = 2
 # LM iterations per sensor in a polish round (warm-started). Located sensors converge in a
 # few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
 POLISH_MAX_ITER: int | None = 25
@@ -48,6 +52,9 @@ DEFAULTS: dict = {
     "spacing_mm": None,  # typical probe spacing; None: median nearest-neighbour distance
     "window_widths": pm.FitSettings.window_widths,
     "cauchy_c": pm.FitSettings.cauchy_c,
+    # "joint": sensors and touch nuisances take joint Gauss-Newton steps (converges);
+    # "alternate": block coordinate descent between them only (the earlier solver).
+    "solver": "alternate",
 }
 
 # Statuses (one word each; see docs/localizer.md)
@@ -100,6 +107,10 @@ def check_params(params: dict) -> dict:
         raise InputError(f"{NAME}: spacing_mm must be a positive number, got {sp!r}")
     if out["inverted"] not in (None, True, False):
         raise InputError(f"{NAME}: inverted must be true, false or unset, got {out['inverted']!r}")
+    if out["solver"] not in SOLVER_ROUNDS:
+        raise InputError(
+            f"{NAME}: solver must be one of {', '.join(SOLVER_ROUNDS)}, got {out['solver']!r}"
+        )
     if out["patch"] is not None and not isinstance(out["patch"], Patch):
         raise InputError(f"{NAME}: patch must be a varskin.patch.Patch")
     return out
@@ -569,6 +580,9 @@ class Localizer:
             rows = np.arange(K)
             self._missed[:K] = False
             v_lg, v_d = self._touch_nuisances(rows)
+            if self.params["solver"] == "joint":
+                for _ in range(JOINT_STEPS):
+                    joint_step(self)
             use = ~self._missed[:K]
             if use.sum() >= 3:
                 # Gain and placement are relative: the sensors' heights and positions carry the
@@ -616,7 +630,7 @@ class Localizer:
         if self._k:
             self._solve(np.arange(n), np.zeros(n, bool))
             if self._k >= 3:
-                self._polish(POLISH_ROUNDS)
+                self._polish(SOLVER_ROUNDS[self.params["solver"]])
         self._dirty = False
 
     def update(self, log: PointLog) -> Predictions:
