@@ -53,7 +53,7 @@ DEFAULTS: dict = {
     "window_widths": pm.FitSettings.window_widths,
     "cauchy_c": pm.FitSettings.cauchy_c,
     # "joint": sensors and touch nuisances take joint Gauss-Newton steps (converges);
-    # "alternate": block coordinate descent between them only (the earlier solver).
+    # "alternate": block coordinate descent between them only (the default).
     "solver": "alternate",
 }
 
