@@ -44,6 +44,14 @@ class RobotConfig:
     payload_cog_m: tuple[float, float, float]
     call_timeout_s: float = 5.0  # supervision timeout of every controller call
 
+    def arm_options(self) -> dict:
+        """The ``URArm`` keyword arguments this config sets (TCP, payload, timeout)."""
+        return {
+            "call_timeout_s": self.call_timeout_s,
+            "tcp_offset": self.tcp_offset,
+            "payload": (self.payload_kg, self.payload_cog_m),
+        }
+
 
 @dataclass(frozen=True)
 class BoardConfig:

@@ -94,8 +94,10 @@ CMD_MOVEL = 3
 CMD_FORCE_MODE = 6
 CMD_FORCE_MODE_STOP = 7
 CMD_ZERO_FT_SENSOR = 8
+CMD_SET_PAYLOAD = 17
 CMD_SET_DAMPING = 20
 CMD_SET_GAIN_SCALING = 21
+CMD_SET_TCP = 29
 CMD_PROTECTIVE_STOP = 31
 CMD_STOPL = 33
 CMD_STOPJ = 34
@@ -200,7 +202,7 @@ _VECTOR6D_NAMES = {
     "target_q", "target_qd", "target_qdd", "target_current", "target_moment", "actual_q", "actual_qd",
     "actual_current", "joint_control_output", "actual_TCP_pose", "actual_TCP_speed", "actual_TCP_force",
     "target_TCP_pose", "target_TCP_speed", "joint_temperatures", "actual_joint_voltage", "payload_inertia",
-    "ft_raw_wrench", "actual_current_as_torque", "actual_current_window", "target_current_window",
+    "ft_raw_wrench", "tcp_offset", "actual_current_as_torque", "actual_current_window", "target_current_window",
 }  # fmt: skip
 
 
@@ -329,6 +331,11 @@ class _ControllerCore:
         self._force_mode: dict | None = None
         self._damping = 0.025
         self._gain_scaling = 0.5
+        # What setTcp / setPayload installed, reported back on RTDE. The simulated pose is
+        # always the probe tip (there are no kinematics), so the TCP is recorded, not applied.
+        self.tcp_offset: tuple[float, ...] = (0.0,) * 6
+        self.payload_kg = 0.0
+        self.payload_cog: tuple[float, ...] = (0.0, 0.0, 0.0)
         self._ft_bias = np.zeros(6)
         self._contact: dict | None = None  # active contact detection
         self._contact_detected = False
@@ -476,6 +483,11 @@ class _ControllerCore:
             return self._protective_stop
 
     @property
+    def tool(self) -> tuple[tuple[float, ...], float, tuple[float, ...]]:
+        with self._lock:
+            return self.tcp_offset, self.payload_kg, self.payload_cog
+
+    @property
     def script_running(self) -> bool:
         with self._lock:
             return self._script_running
@@ -559,6 +571,11 @@ class _ControllerCore:
             self._busy = "stop"
         elif cmd == CMD_ZERO_FT_SENSOR:
             self._ft_bias = self._raw_wrench()
+        elif cmd == CMD_SET_PAYLOAD:
+            self.payload_kg = float(d.get(0, 0.0))
+            self.payload_cog = tuple(float(d.get(1 + i, 0.0)) for i in range(3))
+        elif cmd == CMD_SET_TCP:
+            self.tcp_offset = tuple(float(v) for v in self._pose_arg(0))
         elif cmd == CMD_SET_DAMPING:
             self._damping = min(max(d.get(0, 0.025), 0.0), 1.0)
         elif cmd == CMD_SET_GAIN_SCALING:
@@ -911,6 +928,12 @@ class _ControllerCore:
             return RUNTIME_PLAYING if self._script_running else RUNTIME_STOPPED
         if name in ("speed_scaling", "target_speed_fraction"):
             return 1.0
+        if name == "payload":
+            return self.payload_kg
+        if name == "payload_cog":
+            return self.payload_cog
+        if name == "tcp_offset":
+            return self.tcp_offset
         if name == "tcp_force_scalar":
             return float(np.linalg.norm(self._reported_force[:3]))
         if name == "joint_temperatures":
@@ -1091,6 +1114,7 @@ class _SharedProbeState(ProbeState):
 _RPC_METHODS = {
     "inject_protective_stop", "stop_script", "drop_connections", "force_log", "tcp_log", "clear_logs",
     "tcp_pose", "protective_stopped", "script_running", "dashboard_reply", "commands_log", "scripts_received", "dashboard_log",
+    "tool",
 }  # fmt: skip
 
 
@@ -1246,6 +1270,10 @@ class SimulatedController:
 
     def clear_logs(self) -> None:
         self._rpc("clear_logs")
+
+    def tool(self) -> tuple[tuple[float, ...], float, tuple[float, ...]]:
+        """The TCP offset, payload mass (kg) and centre of gravity (m) the script installed."""
+        return self._rpc("tool")
 
     def commands_log(self) -> list[tuple[float, int]]:
         """(controller time, command id) of every command the emulated script processed."""

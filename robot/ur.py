@@ -86,7 +86,13 @@ class URArm:
         contact_accel_m_s2: float = CONTACT_ACCEL_M_S2,
         damping: float = 0.05,
         gain_scaling: float = 0.5,
+        tcp_offset: Sequence[float] | None = None,
+        payload: tuple[float, Sequence[float]] | None = None,
     ) -> None:
+        """``tcp_offset`` (flange -> probe tip, [x, y, z m, rx, ry, rz rad]) and ``payload``
+        (kg, centre of gravity m from the flange) are installed on the controller at
+        ``connect()``: every pose and force here is the probe tip's, and the force limits
+        mean what they say only with the mount's weight known. None leaves the arm's own."""
         self.host = host
         self.envelope = envelope
         self.call_timeout_s = call_timeout_s
@@ -95,6 +101,13 @@ class URArm:
         self.contact_accel_m_s2 = contact_accel_m_s2
         self.damping = damping
         self.gain_scaling = gain_scaling
+        self.tcp_offset = None if tcp_offset is None else [float(v) for v in tcp_offset]
+        if self.tcp_offset is not None and len(self.tcp_offset) != 6:
+            raise ValueError(f"tcp_offset needs 6 numbers, got {len(self.tcp_offset)}")
+        self.payload = None
+        if payload is not None:
+            mass, cog = payload
+            self.payload = (float(mass), [float(v) for v in cog])
         self._ctrl = None
         self._recv = None
         self._dash = None
@@ -137,7 +150,29 @@ class URArm:
         )
         if not self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False):
             raise ScriptNotRunning(f"UR {self.host}: the ur-rtde control script did not start")
+        self._install_tool()
         return self
+
+    def _install_tool(self) -> None:
+        """setTcp and setPayload, then read the payload back before anything moves."""
+        if self.tcp_offset is not None:
+            self._call("setTcp", self._ctrl.setTcp, self.tcp_offset)
+        if self.payload is None:
+            return
+        mass, cog = self.payload
+        self._call("setPayload", self._ctrl.setPayload, mass, cog)
+        # RTDE reports the new payload from the next cycle on: give it a few.
+        deadline = time.monotonic() + self.call_timeout_s
+        while True:
+            got = float(self._call("getPayload", self._recv.getPayload))
+            if abs(got - mass) <= 1e-3:
+                return
+            if time.monotonic() > deadline:
+                raise RobotError(
+                    f"UR {self.host}: the controller reports a {got:g} kg payload after "
+                    f"setPayload({mass:g} kg); check the arm's installation before moving"
+                )
+            time.sleep(0.02)
 
     def _probe_controller(self, timeout: float) -> None:
         """Check, in plain Python with socket timeouts, that the controller answers on RTDE

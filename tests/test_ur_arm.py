@@ -281,3 +281,25 @@ def test_connect_to_a_silent_or_absent_controller_fails_fast(patch_b):
         assert arm.status().connected is False
     with pytest.raises(ConnectionLost, match="does not answer"):
         URArm(sim.host, env, connect_timeout_s=1.0).connect()  # nothing listens there now
+
+
+def test_connect_installs_the_probe_tcp_and_payload_before_anything_moves(patch_b):
+    """setTcp (script command 29) and setPayload (17) are the first commands the controller
+    processes, with the launch's values, and the payload is read back over RTDE."""
+    rig = make_rig(patch_b)
+    tcp = (0.001, -0.002, 0.125, 0.0, 0.0, 0.01)
+    with SimulatedController(rig, seed=9) as sim:
+        arm = URArm(
+            sim.host,
+            make_envelope(rig, patch_b),
+            call_timeout_s=CALL_TIMEOUT_S,
+            tcp_offset=tcp,
+            payload=(0.42, (0.0, 0.001, 0.05)),
+        )
+        with arm:
+            got_tcp, mass, cog = sim.tool()
+            assert got_tcp == pytest.approx(tcp)
+            assert mass == pytest.approx(0.42)
+            assert cog == pytest.approx((0.0, 0.001, 0.05))
+            assert [cmd for _, cmd in sim.commands_log()][:2] == [29, 17]
+            assert arm._call("getPayload", arm._recv.getPayload) == pytest.approx(0.42)

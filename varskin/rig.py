@@ -92,7 +92,7 @@ def open_rig(launch: LaunchConfig, allow_real: bool = False) -> Iterator[Rig]:
 
         from robot.ur import URArm  # lazily: ur-rtde is needed only to drive an arm
 
-        arm = URArm(host, launch.envelope, call_timeout_s=launch.robot.call_timeout_s)
+        arm = URArm(host, launch.envelope, **launch.robot.arm_options())
         stack.callback(arm.close)
         arm.connect()
         yield Rig(

@@ -182,7 +182,7 @@ def default_arm_factory(launch: LaunchConfig, allow_motion: bool) -> Iterator[Ar
         if allow_motion:
             from robot.ur import URArm  # lazily: ur-rtde is only needed when connecting
 
-            arm = URArm(host, launch.envelope, call_timeout_s=launch.robot.call_timeout_s)
+            arm = URArm(host, launch.envelope, **launch.robot.arm_options())
         else:
             from robot.ur_reader import URReader
 

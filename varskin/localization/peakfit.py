@@ -69,6 +69,12 @@ UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_
 # centroid fallback was tried and rejected: on such maps its error is unbounded.
 IRREGULAR = "irregular"
 WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
+# The sensor's offset moved by more than DRIFT_FRACTION of its peak during its own touches:
+# the floor model (a slow quadratic) cannot follow a settling that fast, and the part it
+# misses shifts the peak by up to ~2.7 mm with a sigma of ~0.5 mm (a weak sensor probed
+# first while the board settles). Re-probe near it once the offsets are steady.
+DRIFTING = "drifting"
+DRIFT_FRACTION = 0.5
 # Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
 # units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
 # 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
@@ -859,6 +865,7 @@ def _predictions(loc: Localizer) -> Predictions:
         & (w > 0.1 * h)
         & (w < 20.0 * h)
     )
+    drift = _drift_during_own_touches(loc, w, h)
     for i in range(n):
         if not f.fitted[i] or valid_counts[i] < 3:
             status[i] = SPARSE
@@ -884,6 +891,10 @@ def _predictions(loc: Localizer) -> Predictions:
         ref = WEAK_FRACTION * np.median(raw_amp[ok])
         weak = ok & (raw_amp < ref)
         status[weak] = WEAK
+    # Judged after `weak`: a sensor not yet probed near, whose "peak" is a wire ridge,
+    # says so first.
+    drifting = drift > DRIFT_FRACTION
+    status[(status == OK) & drifting] = DRIFTING
     ok = status == OK
     # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
     # only one flank seen) but passed every other check may be placed by its wires.
@@ -906,12 +917,27 @@ def _predictions(loc: Localizer) -> Predictions:
         xy = np.column_stack([nx, ny])
         sd = np.where(use, np.sqrt((vx + vy) / 2.0), sd)
         # Judged again after the prior: placed within max_sigma_mm and not weak, it is ok.
-        placed = loose & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
+        placed = loose & ~drifting & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
         if ok.sum() >= 3:
             placed &= raw_amp >= WEAK_FRACTION * np.median(raw_amp[ok])
         status[placed] = OK
     sigma = sd * R95_PER_AXIS_SD / 2.0
     return _build(loc, status, xy, sigma, snr, params)
+
+
+def _drift_during_own_touches(loc: Localizer, w: np.ndarray, h: float) -> np.ndarray:
+    """(N,) how far each sensor's fitted floor moves across the touches in its own fit
+    window, in units of its fitted peak height (inf where there is no peak)."""
+    f = loc.fit
+    tau = loc._tau()[:, None] - f.tc[None, :]
+    fl = pm.floor(tau, f.theta)
+    inside = _window_members(loc, f.theta[:, :2], w, h)
+    hi = np.where(inside, fl, -np.inf).max(axis=0)
+    lo = np.where(inside, fl, np.inf).min(axis=0)
+    span = np.where(inside.any(axis=0), hi - lo, 0.0)
+    amp = f.theta[:, pm.AMP]
+    with np.errstate(all="ignore"):
+        return np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
 
 
 def _window_members(loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
