@@ -161,17 +161,28 @@ class URArm:
             return
         mass, cog = self.payload
         self._call("setPayload", self._ctrl.setPayload, mass, cog)
+        got = [math.nan]
+
+        def reads_back() -> bool:
+            got[0] = float(self._call("getPayload", self._recv.getPayload))
+            return abs(got[0] - mass) <= 1e-3
+
         # RTDE reports the new payload from the next cycle on: give it a few.
+        self._poll(
+            reads_back,
+            lambda: RobotError(
+                f"UR {self.host}: the controller reports a {got[0]:g} kg payload after "
+                f"setPayload({mass:g} kg); check the arm's installation before moving"
+            ),
+        )
+
+    def _poll(self, done: Callable[[], bool], failure: Callable[[], RobotError]) -> None:
+        """Poll ``done`` every 20 ms for up to ``call_timeout_s``; raise ``failure()`` if it
+        never holds."""
         deadline = time.monotonic() + self.call_timeout_s
-        while True:
-            got = float(self._call("getPayload", self._recv.getPayload))
-            if abs(got - mass) <= 1e-3:
-                return
+        while not done():
             if time.monotonic() > deadline:
-                raise RobotError(
-                    f"UR {self.host}: the controller reports a {got:g} kg payload after "
-                    f"setPayload({mass:g} kg); check the arm's installation before moving"
-                )
+                raise failure()
             time.sleep(0.02)
 
     def _probe_controller(self, timeout: float) -> None:
@@ -402,11 +413,14 @@ class URArm:
             reply = self._call("unlockProtectiveStop", self._dash.unlockProtectiveStop, check=False)
             log.info("UR %s: unlock protective stop: %s", self.host, reply)
             self._call("closeSafetyPopup", self._dash.closeSafetyPopup, check=False)
-            deadline = time.monotonic() + self.call_timeout_s
-            while self._call("isProtectiveStopped", self._recv.isProtectiveStopped, check=False):
-                if time.monotonic() > deadline:
-                    raise ProtectiveStop(f"UR {self.host}: protective stop did not clear ({reply})")
-                time.sleep(0.02)
+            self._poll(
+                lambda: (
+                    not self._call(
+                        "isProtectiveStopped", self._recv.isProtectiveStopped, check=False
+                    )
+                ),
+                lambda: ProtectiveStop(f"UR {self.host}: protective stop did not clear ({reply})"),
+            )
         self._in_force_mode = False
         running = self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False)
         # a real controller may leave the program paused rather than stopped: restart it too
@@ -420,11 +434,10 @@ class URArm:
                 if "Failed to execute" not in str(e):
                     raise
                 self._call("reuploadScript", self._ctrl.reuploadScript)
-            deadline = time.monotonic() + self.call_timeout_s
-            while not self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False):
-                if time.monotonic() > deadline:
-                    raise ScriptNotRunning(f"UR {self.host}: control script did not restart")
-                time.sleep(0.02)
+            self._poll(
+                lambda: self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False),
+                lambda: ScriptNotRunning(f"UR {self.host}: control script did not restart"),
+            )
 
     # --- the touch ------------------------------------------------------------------------
 
