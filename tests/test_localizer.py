@@ -288,3 +288,20 @@ def test_last_column_at_the_probes_edge_is_located_within_two_sigma(patch_b, use
         assert p.status == OK, (p.sensor, p.status)
         assert err[i] <= 2 * p.sigma_mm, (p.sensor, err[i], p.sigma_mm)
         assert p.sigma_mm <= 5.0
+
+
+def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
+    """The live update's own column median (numpy's is slow on small arrays) must agree
+    with ``np.nanmedian``: odd and even counts, NaN gaps, an all-NaN column, +-inf."""
+    rng = np.random.default_rng(3)
+    for rows in (1, 2, 3, 4, 7, 100):
+        a = rng.normal(size=(rows, 6))
+        a[rng.random(a.shape) < 0.3] = np.nan
+        a[:, 0] = np.nan
+        a[0, 1] = np.inf
+        a[-1, 2] = -np.inf
+        with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+            want = np.nanmedian(a, axis=0)
+        got = peakfit._nanmedian_cols(a)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)

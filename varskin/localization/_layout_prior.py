@@ -47,41 +47,74 @@ def shrink_to_wires(
     out = coord.copy()
     out_var = var.copy()
     prior = _design_prior(coord, var, groups, usable, design, min_scatter_mm)
-    for gid in np.unique(groups[groups >= 0]):
-        members = np.flatnonzero((groups == gid) & usable)
-        has_prior = gid in prior
-        if members.size < (1 if has_prior else 2):
-            continue
-        c, v, t = coord[members], var[members], along[members]
-        X = _design(t)
-        tau2 = _scatter(c, v, X, min_scatter_mm)
-        w = 1.0 / (v + tau2)
-        # The design is a pseudo-observation of the line's level at the wire's centre; it is
-        # never left out, so a lone crossing is still pulled towards it.
-        Pm = np.zeros((X.shape[1], X.shape[1]))
-        pb = np.zeros(X.shape[1])
-        if has_prior:
-            mu, s2 = prior[gid]
-            Pm[0, 0] = 1.0 / s2
-            pb[0] = mu / s2
-        A = np.linalg.pinv((X * w[:, None]).T @ X + Pm)
-        fitted = X @ (A @ ((X * w[:, None]).T @ c + pb))
-        lev = np.clip(w * np.einsum("ip,pq,iq->i", X, A, X), 0.0, 1.0 - 1e-9)
-        # Leave-one-out line: a sensor is pulled towards what its wire-mates (and the design)
-        # say, not itself.
-        loo = (fitted - lev * c) / (1.0 - lev)
-        loo_var = lev / (w * (1.0 - lev))
-        prior_var = tau2 + loo_var
-        post_var = 1.0 / (1.0 / v + 1.0 / prior_var)
-        out[members] = post_var * (c / v + loo / prior_var)
-        if shared is None:
-            out_var[members] = post_var
-        else:
-            # Error of lam*c + (1-lam)*loo when the shared part is common to c and loo.
-            sh = np.clip(shared[members], 0.0, v)
-            lam = post_var / v
-            loo_own = loo_var * np.clip(1.0 - sh.mean() / np.maximum(v.mean(), 1e-300), 0, 1)
-            out_var[members] = sh + lam**2 * (v - sh) + (1.0 - lam) ** 2 * (tau2 + loo_own)
+    # All wires at once, padded to (G, M): a live update calls this twice per touch, and a
+    # Python loop of tiny numpy calls per wire cost more than the arithmetic.
+    gids = np.unique(groups[groups >= 0])
+    use = usable & (groups >= 0)
+    if gids.size == 0 or not use.any():
+        return out, out_var
+    member = (groups[None, :] == gids[:, None]) & use[None, :]  # (G, N)
+    count = member.sum(axis=1)
+    has_prior = np.array([int(g) in prior for g in gids])
+    keep = count >= np.where(has_prior, 1, 2)
+    gids, member, count, has_prior = gids[keep], member[keep], count[keep], has_prior[keep]
+    if gids.size == 0:
+        return out, out_var
+    M = int(count.max())
+    order = np.argsort(~member, axis=1, kind="stable")[:, :M]  # (G, M) sensor indices
+    mask = np.take_along_axis(member, order, axis=1)
+    c = np.where(mask, coord[order], 0.0)
+    v = np.where(mask, var[order], 1.0)
+    t = np.where(mask, along[order], 0.0)
+    # A slanted line needs enough crossings (leave-one-out keeps >= 4) to beat a constant;
+    # otherwise the slope column is zero and its normal equation pins the slope at zero.
+    t_mean = (t * mask).sum(axis=1) / count
+    t_lo = np.where(mask, t, np.inf).min(axis=1)
+    t_hi = np.where(mask, t, -np.inf).max(axis=1)
+    slanted = (count >= 5) & (t_hi > t_lo)
+    tc = np.where(mask & slanted[:, None], t - t_mean[:, None], 0.0)
+    n_cols = np.where(slanted, 2, 1)
+    tau2 = _scatter_rows(c, v, tc, mask, count, n_cols, min_scatter_mm)
+    w = np.where(mask, 1.0 / (v + tau2[:, None]), 0.0)
+    # The design is a pseudo-observation of the line's level at the wire's centre; it is
+    # never left out, so a lone crossing is still pulled towards it.
+    mu = np.zeros(gids.size)
+    s2 = np.ones(gids.size)
+    for j in np.flatnonzero(has_prior):
+        mu[j], s2[j] = prior[int(gids[j])]
+    p0 = np.where(has_prior, 1.0 / s2, 0.0)
+    pb = np.where(has_prior, mu / s2, 0.0)
+    a00 = w.sum(axis=1) + p0
+    a01 = (w * tc).sum(axis=1)
+    a11 = (w * tc * tc).sum(axis=1) + np.where(slanted, 0.0, 1.0)
+    i00, i01, i11 = _inv_sym2(a00, a01, a11)
+    r0 = (w * c).sum(axis=1) + pb
+    r1 = (w * tc * c).sum(axis=1)
+    beta0 = i00 * r0 + i01 * r1
+    beta1 = i01 * r0 + i11 * r1
+    fitted = beta0[:, None] + beta1[:, None] * tc
+    quad = i00[:, None] + 2.0 * i01[:, None] * tc + i11[:, None] * tc * tc
+    lev = np.clip(w * quad, 0.0, 1.0 - 1e-9)
+    # Leave-one-out line: a sensor is pulled towards what its wire-mates (and the design)
+    # say, not itself.
+    loo = (fitted - lev * c) / (1.0 - lev)
+    loo_var = lev / (np.where(mask, w, 1.0) * (1.0 - lev))
+    prior_var = tau2[:, None] + loo_var
+    post_var = 1.0 / (1.0 / v + 1.0 / prior_var)
+    new = post_var * (c / v + loo / prior_var)
+    if shared is None:
+        new_var = post_var
+    else:
+        # Error of lam*c + (1-lam)*loo when the shared part is common to c and loo.
+        sh = np.where(mask, np.clip(shared[order], 0.0, v), 0.0)
+        lam = post_var / v
+        v_mean = (v * mask).sum(axis=1) / count
+        sh_mean = sh.sum(axis=1) / count
+        own = np.clip(1.0 - sh_mean / np.maximum(v_mean, 1e-300), 0.0, 1.0)
+        loo_own = loo_var * own[:, None]
+        new_var = sh + lam**2 * (v - sh) + (1.0 - lam) ** 2 * (tau2[:, None] + loo_own)
+    out[order[mask]] = new[mask]
+    out_var[order[mask]] = new_var[mask]
     return out, out_var
 
 
@@ -95,52 +128,74 @@ def _design_prior(coord, var, groups, usable, design, floor_mm: float) -> dict:
     """
     if design is None:
         return {}
-    gids, level, level_var, dz = [], [], [], []
-    for gid in np.unique(groups[groups >= 0]):
-        members = np.flatnonzero((groups == gid) & usable)
-        d = design[groups == gid]
-        if members.size == 0 or not np.isfinite(d).all():
-            continue
-        w = 1.0 / np.maximum(var[members], 1e-12)
-        gids.append(gid)
-        level.append(float((w * coord[members]).sum() / w.sum()))
-        level_var.append(float(1.0 / w.sum()))
-        dz.append(float(d[0]))
-    if len(gids) < 3:
+    gids = np.unique(groups[groups >= 0])
+    in_group = groups[None, :] == gids[:, None]  # (G, N)
+    member = in_group & usable[None, :]
+    designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
+    keep = member.any(axis=1) & designed
+    if keep.sum() < 3:
         return {}
-    level, level_var, dz = np.array(level), np.array(level_var), np.array(dz)
-    X = _design(dz)
-    s2 = _scatter(level, level_var, X, floor_mm, iterations=6)
+    gids, member, in_group = gids[keep], member[keep], in_group[keep]
+    wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)
+    level = (wm * coord[None, :]).sum(axis=1) / wm.sum(axis=1)
+    level_var = 1.0 / wm.sum(axis=1)
+    dz = design[in_group.argmax(axis=1)]  # each wire's design coordinate (its first sensor)
+    # An affine map (offset and scale) needs >= 5 wires; with fewer, an offset alone.
+    slanted = dz.size >= 5 and np.ptp(dz) > 0
+    x1 = dz - dz.mean() if slanted else np.zeros(dz.size)
+    n_cols = np.array([2 if slanted else 1])
+    one = np.ones((1, dz.size), bool)
+    s2 = float(
+        _scatter_rows(
+            level[None], level_var[None], x1[None], one, np.array([dz.size]), n_cols, floor_mm, 6
+        )[0]
+    )
     # Each wire's prior comes from the map fitted to the other wires (its own crossings
-    # must not vouch for themselves), plus that map's own uncertainty at the wire.
+    # must not vouch for themselves), plus that map's own uncertainty at the wire: the
+    # normal equations of all wires minus wire j's own term, for every j at once.
     w = 1.0 / (level_var + s2)
-    out = {}
-    for j, g in enumerate(gids):
-        keep = np.arange(dz.size) != j
-        Xk, wk = X[keep], w[keep]
-        cov = np.linalg.pinv((Xk * wk[:, None]).T @ Xk)
-        b = cov @ ((Xk * wk[:, None]).T @ level[keep])
-        out[g] = (float(X[j] @ b), float(s2 + X[j] @ cov @ X[j]))
-    return out
+    a00 = w.sum() - w
+    a01 = (w * x1).sum() - w * x1
+    a11 = (w * x1 * x1).sum() - w * x1 * x1 + (0.0 if slanted else 1.0)
+    r0 = (w * level).sum() - w * level
+    r1 = (w * x1 * level).sum() - w * x1 * level
+    i00, i01, i11 = _inv_sym2(a00, a01, a11)
+    mean = (i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1)
+    spread = s2 + i00 + 2.0 * i01 * x1 + i11 * x1 * x1
+    return {int(g): (float(m), float(v)) for g, m, v in zip(gids, mean, spread, strict=True)}
 
 
-def _design(t: np.ndarray) -> np.ndarray:
-    # A slanted line needs enough crossings (leave-one-out keeps >= 4) to beat a constant.
-    if t.size >= 5 and np.ptp(t) > 0:
-        return np.column_stack([np.ones_like(t), t - t.mean()])
-    return np.ones((t.size, 1))
+def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: int = 4):
+    """Empirical-Bayes scatter (variance) of values around their line, >= the floor, one per
+    row: the crossings around their wire's line, or the wires around the design.
 
-
-def _scatter(c, v, X, floor_mm: float, iterations: int = 4) -> float:
-    """Empirical-Bayes scatter of values ``c`` (variances ``v``) around the fit ``X``,
-    >= the floor: the crossings around their wire's line, or the wires around the design."""
-    tau2 = floor_mm**2
-    if c.size <= X.shape[1]:
+    Rows of (G, M) values ``c`` with variances ``v`` padded under ``mask``; ``tc`` is the
+    centred coordinate along the line (all zero where the line is a constant, ``n_cols`` 1).
+    """
+    tau2 = np.full(c.shape[0], floor_mm**2)
+    fits = count > n_cols
+    if not fits.any():
         return tau2
+    flat = (n_cols == 1).astype(float)
+    dof = np.maximum(count - n_cols, 1)
+    v_mean = (v * mask).sum(axis=1) / np.maximum(count, 1)
     for _ in range(iterations):
-        w = 1.0 / (v + tau2)
-        beta = np.linalg.lstsq(X * np.sqrt(w)[:, None], c * np.sqrt(w), rcond=None)[0]
-        resid = c - X @ beta
-        dof = max(c.size - X.shape[1], 1)
-        tau2 = max(floor_mm**2, float((resid**2).sum() / dof - v.mean()))
+        w = np.where(mask, 1.0 / (v + tau2[:, None]), 0.0)
+        i00, i01, i11 = _inv_sym2(
+            w.sum(axis=1), (w * tc).sum(axis=1), (w * tc * tc).sum(axis=1) + flat
+        )
+        r0, r1 = (w * c).sum(axis=1), (w * tc * c).sum(axis=1)
+        resid = np.where(
+            mask, c - (i00 * r0 + i01 * r1)[:, None] - (i01 * r0 + i11 * r1)[:, None] * tc, 0.0
+        )
+        new = np.maximum(floor_mm**2, (resid**2).sum(axis=1) / dof - v_mean)
+        tau2 = np.where(fits, new, tau2)
     return tau2
+
+
+def _inv_sym2(a00, a01, a11):
+    """Elementwise inverse of symmetric 2x2 matrices [[a00, a01], [a01, a11]] (0 if singular)."""
+    det = a00 * a11 - a01 * a01
+    ok = np.abs(det) > 1e-12 * (np.abs(a00 * a11) + a01 * a01)
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    return a11 * inv, -a01 * inv, a00 * inv
