@@ -305,3 +305,20 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
         got = peakfit._nanmedian_cols(a)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)
+
+
+def test_layout_prior_ignores_a_sensor_without_a_coordinate():
+    """An unusable sensor whose fit gave no coordinate (NaN) must not spoil its wire-mates:
+    the prior pools all wires at once, and a NaN times a zero weight is still NaN."""
+    from varskin.localization._layout_prior import shrink_to_wires
+
+    groups = np.array([0, 0, 0, 1, 1, 1, 2, 2, 2, 0])
+    coord = np.array([1.0, 1.1, 0.9, 5.0, 5.2, 4.9, 9.0, 9.1, 8.8, np.nan])
+    var = np.full(10, 0.04)
+    var[9] = np.nan
+    usable = np.arange(10) < 9
+    design = np.array([1.0, 1, 1, 5, 5, 5, 9, 9, 9, 1])
+    out, out_var = shrink_to_wires(coord, var, np.arange(10.0), groups, usable, 0.25, None, design)
+    assert np.isfinite(out[:9]).all() and np.isfinite(out_var[:9]).all()
+    # Each crossing moves towards its wire-mates, never past them.
+    assert np.all(np.abs(out[:9] - coord[:9]) <= 0.2)

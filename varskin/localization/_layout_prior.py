@@ -137,7 +137,8 @@ def _design_prior(coord, var, groups, usable, design, floor_mm: float) -> dict:
         return {}
     gids, member, in_group = gids[keep], member[keep], in_group[keep]
     wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)
-    level = (wm * coord[None, :]).sum(axis=1) / wm.sum(axis=1)
+    # Sensors outside a wire may have no coordinate at all (NaN): mask, never multiply by 0.
+    level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wm.sum(axis=1)
     level_var = 1.0 / wm.sum(axis=1)
     dz = design[in_group.argmax(axis=1)]  # each wire's design coordinate (its first sensor)
     # An affine map (offset and scale) needs >= 5 wires; with fewer, an offset alone.
