@@ -46,20 +46,21 @@ def shrink_to_wires(
     """
     out = coord.copy()
     out_var = var.copy()
-    prior = _design_prior(coord, var, groups, usable, design, min_scatter_mm)
     # All wires at once, padded to (G, M): a live update calls this twice per touch, and a
     # Python loop of tiny numpy calls per wire cost more than the arithmetic.
     gids = np.unique(groups[groups >= 0])
-    use = usable & (groups >= 0)
-    if gids.size == 0 or not use.any():
+    if gids.size == 0 or not (usable & (groups >= 0)).any():
         return out, out_var
-    member = (groups[None, :] == gids[:, None]) & use[None, :]  # (G, N)
+    in_group = groups[None, :] == gids[:, None]  # (G, N)
+    member = in_group & usable[None, :]
+    mu, s2 = _design_prior(coord, var, in_group, member, design, min_scatter_mm)
+    has_prior = np.isfinite(mu)
     count = member.sum(axis=1)
-    has_prior = np.array([int(g) in prior for g in gids])
     keep = count >= np.where(has_prior, 1, 2)
-    gids, member, count, has_prior = gids[keep], member[keep], count[keep], has_prior[keep]
-    if gids.size == 0:
+    if not keep.any():
         return out, out_var
+    member, count, has_prior = member[keep], count[keep], has_prior[keep]
+    mu, s2 = mu[keep], s2[keep]
     M = int(count.max())
     order = np.argsort(~member, axis=1, kind="stable")[:, :M]  # (G, M) sensor indices
     mask = np.take_along_axis(member, order, axis=1)
@@ -78,12 +79,8 @@ def shrink_to_wires(
     w = np.where(mask, 1.0 / (v + tau2[:, None]), 0.0)
     # The design is a pseudo-observation of the line's level at the wire's centre; it is
     # never left out, so a lone crossing is still pulled towards it.
-    mu = np.zeros(gids.size)
-    s2 = np.ones(gids.size)
-    for j in np.flatnonzero(has_prior):
-        mu[j], s2[j] = prior[int(gids[j])]
-    p0 = np.where(has_prior, 1.0 / s2, 0.0)
-    pb = np.where(has_prior, mu / s2, 0.0)
+    p0 = np.where(has_prior, 1.0 / np.where(has_prior, s2, 1.0), 0.0)
+    pb = np.where(has_prior, mu, 0.0) * p0
     a00 = w.sum(axis=1) + p0
     a01 = (w * tc).sum(axis=1)
     a11 = (w * tc * tc).sum(axis=1) + np.where(slanted, 0.0, 1.0)
@@ -118,24 +115,26 @@ def shrink_to_wires(
     return out, out_var
 
 
-def _design_prior(coord, var, groups, usable, design, floor_mm: float) -> dict:
-    """{wire: (mean, variance)} of each wire's level from its design coordinate.
+def _design_prior(coord, var, in_group, member, design, floor_mm: float):
+    """(G,) mean and variance of each wire's level from its design coordinate (NaN: none).
+
+    ``in_group`` (G, N) says which sensors cross each wire, ``member`` which of those are
+    usable.
 
     Each wire's own level (weighted mean of its usable crossings) is compared with its
     design coordinate over all wires: an affine map (offset, and scale with >= 5 wires)
     absorbs registration, the scatter of the wires around it is their displacement from
     the design (empirical Bayes, >= the floor). Needs >= 3 measured wires.
     """
+    mean = np.full(in_group.shape[0], np.nan)
+    spread = mean.copy()
     if design is None:
-        return {}
-    gids = np.unique(groups[groups >= 0])
-    in_group = groups[None, :] == gids[:, None]  # (G, N)
-    member = in_group & usable[None, :]
+        return mean, spread
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
     keep = member.any(axis=1) & designed
     if keep.sum() < 3:
-        return {}
-    gids, member, in_group = gids[keep], member[keep], in_group[keep]
+        return mean, spread
+    member, in_group = member[keep], in_group[keep]
     wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)
     # Sensors outside a wire may have no coordinate at all (NaN): mask, never multiply by 0.
     level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wm.sum(axis=1)
@@ -161,9 +160,9 @@ def _design_prior(coord, var, groups, usable, design, floor_mm: float) -> dict:
     r0 = (w * level).sum() - w * level
     r1 = (w * x1 * level).sum() - w * x1 * level
     i00, i01, i11 = _inv_sym2(a00, a01, a11)
-    mean = (i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1)
-    spread = s2 + i00 + 2.0 * i01 * x1 + i11 * x1 * x1
-    return {int(g): (float(m), float(v)) for g, m, v in zip(gids, mean, spread, strict=True)}
+    mean[keep] = (i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1)
+    spread[keep] = s2 + i00 + 2.0 * i01 * x1 + i11 * x1 * x1
+    return mean, spread
 
 
 def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: int = 4):
