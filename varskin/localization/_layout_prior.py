@@ -29,6 +29,7 @@ def shrink_to_wires(
     min_scatter_mm: float,
     shared: np.ndarray | None = None,
     design: np.ndarray | None = None,
+    family: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pull ``coord`` (N,) towards each group's line in ``along`` (N,); returns (coord, var).
 
@@ -42,7 +43,8 @@ def shrink_to_wires(
     cannot average out, and counts the own parts of the sensor and of its mates.
 
     ``design`` (N,) is each sensor's wire's design coordinate (NaN: unknown); see the module
-    docstring.
+    docstring. ``family`` (N,) says which wires share one map from design to fitted
+    coordinates (default: all); ``shrink_to_layout`` passes both axes at once that way.
     """
     out = coord.copy()
     out_var = var.copy()
@@ -53,7 +55,8 @@ def shrink_to_wires(
         return out, out_var
     in_group = groups[None, :] == gids[:, None]  # (G, N)
     member = in_group & usable[None, :]
-    mu, s2 = _design_prior(coord, var, in_group, member, design, min_scatter_mm)
+    fam = np.zeros(coord.size, int) if family is None else np.asarray(family)
+    mu, s2 = _design_prior(coord, var, in_group, member, design, fam, min_scatter_mm)
     has_prior = np.isfinite(mu)
     count = member.sum(axis=1)
     keep = count >= np.where(has_prior, 1, 2)
@@ -115,16 +118,50 @@ def shrink_to_wires(
     return out, out_var
 
 
-def _design_prior(coord, var, in_group, member, design, floor_mm: float):
+def shrink_to_layout(
+    xy: np.ndarray,
+    var: np.ndarray,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    usable: np.ndarray,
+    min_scatter_mm: float,
+    shared_xy: tuple[np.ndarray, np.ndarray] | None = None,
+    design_xy: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Both axes in one pass: x towards the TX wires' lines, y towards the RX wires'.
+
+    ``xy`` (N, 2), ``var`` (N,) per-axis variance, ``tx``/``rx`` (N,) wire indices (-1:
+    none); ``shared_xy`` and ``design_xy`` are ``shrink_to_wires``' ``shared`` and
+    ``design`` for x and for y. Returns the new xy and the x and y variances. One call
+    instead of one per axis: a live update runs this every touch.
+    """
+    n = len(var)
+    offset = max(int(tx.max(initial=-1)), -1) + 1
+    groups = np.concatenate([tx, np.where(rx >= 0, rx + offset, -1)])
+    out, out_var = shrink_to_wires(
+        np.concatenate([xy[:, 0], xy[:, 1]]),
+        np.concatenate([var, var]),
+        np.concatenate([xy[:, 1], xy[:, 0]]),
+        groups,
+        np.concatenate([usable, usable]),
+        min_scatter_mm,
+        None if shared_xy is None else np.concatenate(shared_xy),
+        None if design_xy is None else np.concatenate(design_xy),
+        np.repeat([0, 1], n),
+    )
+    return np.column_stack([out[:n], out[n:]]), out_var[:n], out_var[n:]
+
+
+def _design_prior(coord, var, in_group, member, design, family, floor_mm: float):
     """(G,) mean and variance of each wire's level from its design coordinate (NaN: none).
 
     ``in_group`` (G, N) says which sensors cross each wire, ``member`` which of those are
-    usable.
+    usable; ``family`` (N,) which wires are mapped together (one family per axis).
 
     Each wire's own level (weighted mean of its usable crossings) is compared with its
-    design coordinate over all wires: an affine map (offset, and scale with >= 5 wires)
-    absorbs registration, the scatter of the wires around it is their displacement from
-    the design (empirical Bayes, >= the floor). Needs >= 3 measured wires.
+    design coordinate over all wires of its family: an affine map (offset, and scale with
+    >= 5 wires) absorbs registration, the scatter of the wires around it is their
+    displacement from the design (empirical Bayes, >= the floor). Needs >= 3 measured wires.
     """
     mean = np.full(in_group.shape[0], np.nan)
     spread = mean.copy()
@@ -132,36 +169,44 @@ def _design_prior(coord, var, in_group, member, design, floor_mm: float):
         return mean, spread
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
     keep = member.any(axis=1) & designed
-    if keep.sum() < 3:
+    first = in_group.argmax(axis=1)  # each wire's first sensor: its design and family
+    fams = np.unique(family[first])
+    rows = (family[first][None, :] == fams[:, None]) & keep[None, :]  # (F, G)
+    rows &= (rows.sum(axis=1) >= 3)[:, None]
+    if not rows.any():
         return mean, spread
-    member, in_group = member[keep], in_group[keep]
     wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)
+    wsum = np.maximum(wm.sum(axis=1), 1e-300)  # wires without members are not kept
     # Sensors outside a wire may have no coordinate at all (NaN): mask, never multiply by 0.
-    level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wm.sum(axis=1)
-    level_var = 1.0 / wm.sum(axis=1)
-    dz = design[in_group.argmax(axis=1)]  # each wire's design coordinate (its first sensor)
+    level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wsum
+    level_var = 1.0 / wsum
+    # Every family's wires at once, padded to (F, W).
+    W = int(rows.sum(axis=1).max())
+    order = np.argsort(~rows, axis=1, kind="stable")[:, :W]
+    mask = np.take_along_axis(rows, order, axis=1)
+    count = mask.sum(axis=1)
+    lv = np.where(mask, level[order], 0.0)
+    lvar = np.where(mask, level_var[order], 1.0)
+    dz = np.where(mask, design[first][order], 0.0)
     # An affine map (offset and scale) needs >= 5 wires; with fewer, an offset alone.
-    slanted = dz.size >= 5 and np.ptp(dz) > 0
-    x1 = dz - dz.mean() if slanted else np.zeros(dz.size)
-    n_cols = np.array([2 if slanted else 1])
-    one = np.ones((1, dz.size), bool)
-    s2 = float(
-        _scatter_rows(
-            level[None], level_var[None], x1[None], one, np.array([dz.size]), n_cols, floor_mm, 6
-        )[0]
-    )
+    span = np.where(mask, dz, -np.inf).max(axis=1) - np.where(mask, dz, np.inf).min(axis=1)
+    slanted = (count >= 5) & (span > 0)
+    dz_mean = dz.sum(axis=1) / np.maximum(count, 1)
+    x1 = np.where(mask & slanted[:, None], dz - dz_mean[:, None], 0.0)
+    s2 = _scatter_rows(lv, lvar, x1, mask, count, np.where(slanted, 2, 1), floor_mm, 6)
     # Each wire's prior comes from the map fitted to the other wires (its own crossings
     # must not vouch for themselves), plus that map's own uncertainty at the wire: the
     # normal equations of all wires minus wire j's own term, for every j at once.
-    w = 1.0 / (level_var + s2)
-    a00 = w.sum() - w
-    a01 = (w * x1).sum() - w * x1
-    a11 = (w * x1 * x1).sum() - w * x1 * x1 + (0.0 if slanted else 1.0)
-    r0 = (w * level).sum() - w * level
-    r1 = (w * x1 * level).sum() - w * x1 * level
+    w = np.where(mask, 1.0 / (lvar + s2[:, None]), 0.0)
+    a00 = w.sum(axis=1)[:, None] - w
+    a01 = (w * x1).sum(axis=1)[:, None] - w * x1
+    a11 = (w * x1 * x1).sum(axis=1)[:, None] - w * x1 * x1 + np.where(slanted, 0.0, 1.0)[:, None]
+    r0 = (w * lv).sum(axis=1)[:, None] - w * lv
+    r1 = (w * x1 * lv).sum(axis=1)[:, None] - w * x1 * lv
     i00, i01, i11 = _inv_sym2(a00, a01, a11)
-    mean[keep] = (i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1)
-    spread[keep] = s2 + i00 + 2.0 * i01 * x1 + i11 * x1 * x1
+    at = order[mask]
+    mean[at] = ((i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1))[mask]
+    spread[at] = (s2[:, None] + i00 + 2.0 * i01 * x1 + i11 * x1 * x1)[mask]
     return mean, spread
 
 

@@ -295,17 +295,20 @@ def fit(
     def prior_hessian(th, cols):
         return prior_hessian_of(th, Q[cols], s)
 
-    def weights_for(th, res, sc, cols):
-        win = window(P[:, cols], th, min_radius, s) * vf[:, cols]
-        z = res / (s.cauchy_c * sc[None, :])
-        return win, win / (1.0 + z * z)
+    def fit_window(th, cols):
+        return window(P[:, cols], th, min_radius, s) * vf[:, cols]
 
-    def cost(th, sc, cols, win):
+    def robust_weights(win, res, sc):
+        z = res / (s.cauchy_c * sc[None, :])
+        return win / (1.0 + z * z)
+
+    def cost(th, sc, cols, win, r=None):
         # The window stays where the iteration started: moving the peak away from the data
-        # must not make the cost vanish.
-        r = Uz[:, cols] - model(
-            P[:, cols], tau[:, cols], th, gain[:, cols], None if rho is None else rho[cols]
-        )
+        # must not make the cost vanish. ``r``: the residuals at ``th`` if already known.
+        if r is None:
+            r = Uz[:, cols] - model(
+                P[:, cols], tau[:, cols], th, gain[:, cols], None if rho is None else rho[cols]
+            )
         z2 = (r / (s.cauchy_c * sc[None, :])) ** 2
         # Cauchy loss over the window: bounded influence of any single touch.
         c = (win * np.log1p(z2)).sum(axis=0) * (s.cauchy_c * sc) ** 2
@@ -318,7 +321,8 @@ def fit(
         th = theta[idx]
         m, J = jacobian(P[:, idx], tau[:, idx], th, gain[:, idx], None if rho is None else rho[idx])
         res = Uz[:, idx] - m
-        win, wts = weights_for(th, res, scale[idx], idx)
+        win = fit_window(th, idx)
+        wts = robust_weights(win, res, scale[idx])
         # M-estimate of the residual scale over the window, floored by the measured noise.
         wsum = np.maximum(win.sum(axis=0), 1e-12)
         sc_new = np.sqrt((wts * res * res).sum(axis=0) / wsum) * 1.3
@@ -327,14 +331,14 @@ def fit(
         # The scale settles in a few iterations; freezing it then lets LM converge fast.
         sc = np.where(it < 8, sc, scale[idx])
         scale[idx] = sc
-        _, wts = weights_for(th, res, sc, idx)
+        wts = robust_weights(win, res, sc)
         H, g = normal_equations(wts, J, res)
         # Weak priors keep the floor slope and the width sane when few points carry the fit.
         sc2 = (sc * sc)[:, None, None]
         Qi = prior_hessian(th, idx)
         g -= np.einsum("spq,sq->sp", Qi, th - mu[idx]) * sc2[:, :, 0]
         H = H + Qi * sc2
-        c0 = cost(th, sc, idx, win)
+        c0 = cost(th, sc, idx, win, res)
         accepted = np.zeros(idx.size, bool)
         step = np.zeros_like(th)
         lam_i = lam[idx]
@@ -385,7 +389,8 @@ def fit(
     # Final weights and covariance at the solution.
     m, J = jacobian(P, tau, theta, gain, rho)
     res = Uz - m
-    win, wts = weights_for(theta, res, scale, np.arange(S))
+    win = fit_window(theta, np.arange(S))
+    wts = robust_weights(win, res, scale)
     wsum = np.maximum(win.sum(axis=0), 1e-12)
     H, _ = normal_equations(wts, J, res)
     H = H + prior_hessian(theta, np.arange(S)) * (scale * scale)[:, None, None]

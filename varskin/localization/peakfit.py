@@ -21,7 +21,7 @@ import numpy as np
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
 from varskin.localization._joint import joint_step
-from varskin.localization._layout_prior import shrink_to_wires
+from varskin.localization._layout_prior import shrink_to_layout
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
@@ -40,6 +40,15 @@ JOINT_STEPS = 2
 # few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
 POLISH_MAX_ITER: int | None = 25
 UPDATE_ITERATIONS = 4  # a live update warm-starts, so a few LM iterations suffice
+# ... and of the second, shorter pass after the touch's own gain and placement are known:
+# it starts from the first pass's fit and moves it by a fraction of a millimetre.
+REFIT_ITERATIONS = 2
+# A reading this far above a sensor's last RECENT_TOUCHES readings, beyond what its model's
+# bump predicts at a touch outside its window (in the map's heights, and in residual
+# sigmas), makes a live update restart that sensor from its map's top.
+UNEXPLAINED_HEIGHT = 0.5
+UNEXPLAINED_SIGMAS = 5.0
+RECENT_TOUCHES = 6
 
 DEFAULTS: dict = {
     "inverted": None,  # None: detect from the maps; True/False: the bench's sign
@@ -79,6 +88,8 @@ DRIFT_FRACTION = 0.5
 # units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
 # 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
 HULL_PRIOR = 1.5
+# Probes whose rms distance from their best line is below this lie on a line ("collinear").
+COLLINEAR_RMS_MM = 0.25
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
@@ -205,6 +216,14 @@ class Localizer:
         self._has_time = True
         self._t0: float | None = None
         self._nn = np.zeros(cap)  # each probe point's distance to its nearest distinct neighbour
+        # Distinct probe points (exactly equal ones count once), their mean and scatter
+        # matrix (Welford): whether the probes lie on a line, without re-reading them all.
+        self._n_distinct = 0
+        self._p_mean = np.zeros(2)
+        self._p_scatter = np.zeros((2, 2))
+        self._spacing_at: tuple[int, float] | None = None  # (log count, spacing there)
+        # The probes' hull as (logs it covers, its edges, its corners); see _probe_hull.
+        self._hull: tuple[int, np.ndarray, np.ndarray] | None = None
         # Per-touch nuisances shared by all sensors: log pressing gain and placement offset
         # (where the probe really landed minus where the log says), plus missed touches.
         self._lg = np.zeros(cap)
@@ -276,6 +295,11 @@ class Localizer:
             self._t0 = t
         self._t[k] = t
         # Keep nearest-neighbour distances current: the probe spacing sets the window floor.
+        if not (k and ((self._P[:k, 0] == x) & (self._P[:k, 1] == y)).any()):
+            self._n_distinct += 1
+            delta = np.array([x, y]) - self._p_mean
+            self._p_mean += delta / self._n_distinct
+            self._p_scatter += np.outer(delta, np.array([x, y]) - self._p_mean)
         if k:
             d = np.hypot(self._P[:k, 0] - x, self._P[:k, 1] - y)
             d = np.where(d > 1e-6, d, np.inf)
@@ -301,9 +325,44 @@ class Localizer:
     def spacing(self) -> float:
         if self.params["spacing_mm"] is not None:
             return float(self.params["spacing_mm"])
-        nn = self._nn[: self._k]
-        nn = nn[np.isfinite(nn)]
-        return float(np.median(nn)) if nn.size else 1.0
+        # Kept per log count: one update asks for it a few times.
+        if self._spacing_at is None or self._spacing_at[0] != self._k:
+            nn = self._nn[: self._k]
+            nn = nn[np.isfinite(nn)]
+            self._spacing_at = (self._k, float(np.median(nn)) if nn.size else 1.0)
+        return self._spacing_at[1]
+
+    def _probe_hull(self) -> np.ndarray | None:
+        """(E, 3) edges n.x + c <= 0 (n unit, outward) of the probes' convex hull; None
+        when the probes are (nearly) collinear.
+
+        Kept across live updates: new touches inside it leave it as it is, and new touches
+        outside it only need the hull of its corners and themselves (qhull over every
+        probe on every update cost more than all the statuses together).
+        """
+        K = self._k
+        # Probes on (nearly) one line cannot tell the two sides of that line apart.
+        if self._n_distinct < 3:
+            return None
+        small = np.linalg.eigvalsh(self._p_scatter)[0]
+        if math.sqrt(max(small, 0.0) / self._n_distinct) < COLLINEAR_RMS_MM:
+            return None
+        if self._hull is not None:
+            k0, eq, corners = self._hull
+            if k0 == K:
+                return eq
+            new = self._P[k0:K]
+            if (new @ eq[:, :2].T + eq[:, 2] <= 1e-9).all():
+                self._hull = (K, eq, corners)
+                return eq
+            pts = np.vstack([corners, new])
+        else:
+            pts = np.unique(self._P[:K], axis=0)
+        from scipy.spatial import ConvexHull
+
+        hull = ConvexHull(pts)
+        self._hull = (K, hull.equations, pts[hull.vertices])
+        return hull.equations
 
     def _detect_sign(self) -> float:
         if self.params["inverted"] is not None:
@@ -687,8 +746,29 @@ class Localizer:
                 np.nanmax(self._V[:k] * self._sign, axis=0) if k else np.full_like(v_new, -np.inf)
             )
         u_new = (v_new - f.floor) / f.amp
-        above_fit = u_new > f.theta[:, pm.B0] + f.theta[:, pm.AMP]  # the model cannot explain it
+        above_fit = u_new > f.theta[:, pm.B0] + f.theta[:, pm.AMP]
         new_top = np.isfinite(v_new) & (v_new > before) & above_fit & ~near
+        # ... or a reading that rises above the sensor's last few readings (its floor
+        # here and now: the probe was elsewhere) by more than half the map's height where
+        # its model has no bump: a peak the model does not have. Without this, a fit that
+        # put its peak beyond the probes early on, from a drifting floor, was never
+        # re-fitted when the probe later passed over the sensor, whose readings stayed
+        # under the session's first ones (Patch B finger seed 7: S15 ended 98 mm off, ok).
+        # The model's own floor is no reference far from its window: it is a polynomial
+        # in time fitted to the touches near the sensor only.
+        if k:
+            recent = _nanmedian_cols(self._V[max(0, k - RECENT_TOUCHES) : k] * self._sign)
+            rho = self._ridge_width(len(self.sensors), f.theta)
+            zero = np.zeros((1, len(self.sensors)))
+            bump = pm.model(p[None], zero, f.theta, None, rho)[0] - pm.floor(zero, f.theta)[0]
+            rise = (v_new - recent) / f.amp - bump
+            new_top |= (
+                np.isfinite(rise)
+                & (rise > UNEXPLAINED_HEIGHT)
+                & (rise > UNEXPLAINED_SIGMAS * f.scale)
+                & ~near
+                & f.fitted
+            )
         # One pass over both: a restarted sensor begins at its map's top (a good start) and
         # the following updates refine it, so a few iterations suffice here too.
         todo = np.flatnonzero(near | new_top)
@@ -710,7 +790,7 @@ class Localizer:
         )[0]
         redo = cand[np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)]
         if redo.size:
-            self._solve(redo, np.ones(redo.size, bool), max_iter=UPDATE_ITERATIONS)
+            self._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS)
         return self._current()
 
     def _current(self) -> Predictions:
@@ -791,22 +871,11 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
 
 
-def _hull_distance(P: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Signed distance (mm, >0 outside) of each xy from the probes' convex hull, the unit
-    outward normal of the hull edge that distance is measured to, and collinear?"""
-    pts = np.unique(P, axis=0)
-    nan_n = np.full((len(xy), 2), np.nan)
-    if len(pts) < 3:
-        return np.full(len(xy), np.inf), nan_n, True
-    c = pts - pts.mean(axis=0)
-    sv = np.linalg.svd(c, compute_uv=False)
-    # Probes on (nearly) one line cannot tell the two sides of that line apart.
-    if sv[1] / math.sqrt(len(pts)) < 0.25:
-        return np.full(len(xy), np.inf), nan_n, True
-    from scipy.spatial import ConvexHull
-
-    hull = ConvexHull(pts)
-    eq = hull.equations  # n.x + c <= 0 inside, n unit length
+def _hull_distance(eq: np.ndarray | None, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Signed distance (mm, >0 outside) of each xy from the hull with edges ``eq``, the
+    unit outward normal of the edge that distance is measured to, and collinear?"""
+    if eq is None:
+        return np.full(len(xy), np.inf), np.full((len(xy), 2), np.nan), True
     with np.errstate(invalid="ignore"):
         d = xy @ eq[:, :2].T + eq[:, 2]
     j = np.argmax(np.where(np.isfinite(d), d, -np.inf), axis=1)
@@ -843,12 +912,11 @@ def _predictions(loc: Localizer) -> Predictions:
     n = len(loc.sensors)
     f = loc.fit
     K = loc.n_logs
-    P = loc._P[:K]
     params = {k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None}
     params["n_logs"] = K
     status = np.array([OK] * n, dtype=object)
     snr = _snr(loc)
-    if K < 3 or len(np.unique(P, axis=0)) < 3:
+    if K < 3 or loc._n_distinct < 3:
         status[:] = SPARSE
         return _build(loc, status, np.zeros((n, 2)), np.zeros(n), snr, params)
     th = f.theta
@@ -856,7 +924,7 @@ def _predictions(loc: Localizer) -> Predictions:
     h = loc.spacing()
     w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
     margin = np.maximum(0.5 * h, 0.5 * w)
-    dist_out, normal, collinear = _hull_distance(P, xy)
+    dist_out, normal, collinear = _hull_distance(loc._probe_hull(), xy)
     # Judged on the fit itself: beyond the hull by more than the margin AND by more than
     # 1.5 sd of the fit along the edge's normal. A one-sided fit that merely ran away (its
     # sd along the normal dwarfs the distance) is not evidence of a peak outside; the hull
@@ -927,10 +995,9 @@ def _predictions(loc: Localizer) -> Predictions:
         use = ok | loose  # a loose sensor informs its wire's line only with its own weight
         shared_x = touch_part * _mean_overlap(inside, tx, use)
         shared_y = touch_part * _mean_overlap(inside, rx, use)
-        dx, dy = loc.design if loc.design is not None else (None, None)
-        nx, vx = shrink_to_wires(xy[:, 0], sd**2, xy[:, 1], tx, use, floor, shared_x, dx)
-        ny, vy = shrink_to_wires(xy[:, 1], sd**2, xy[:, 0], rx, use, floor, shared_y, dy)
-        xy = np.column_stack([nx, ny])
+        xy, vx, vy = shrink_to_layout(
+            xy, sd**2, tx, rx, use, floor, (shared_x, shared_y), loc.design
+        )
         sd = np.where(use, np.sqrt((vx + vy) / 2.0), sd)
         # Judged again after the prior: placed within max_sigma_mm and not weak, it is ok.
         placed = loose & ~drifting & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
@@ -970,17 +1037,24 @@ def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) ->
     wire-mates (|A and B| / sqrt(|A| |B|)); 1 where it has none (nothing to average)."""
     n = inside.shape[1]
     out = np.ones(n)
-    counts = inside.sum(axis=0).astype(float)
-    for g in np.unique(groups[groups >= 0]):
-        members = np.flatnonzero((groups == g) & usable)
-        if members.size < 2:
-            continue
-        A = inside[:, members].astype(float)
-        common = A.T @ A
-        norm = np.sqrt(np.outer(counts[members], counts[members]))
-        frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
-        np.fill_diagonal(frac, np.nan)
-        out[members] = np.nanmean(frac, axis=1)
+    gids = np.unique(groups[groups >= 0])
+    member = (groups[None, :] == gids[:, None]) & usable[None, :]  # (G, N)
+    member &= (member.sum(axis=1) >= 2)[:, None]
+    if not member.any():
+        return out
+    # Every wire at once, padded to (G, M) like the layout prior: a live update calls
+    # this twice per touch.
+    M = int(member.sum(axis=1).max())
+    order = np.argsort(~member, axis=1, kind="stable")[:, :M]
+    mask = np.take_along_axis(member, order, axis=1)
+    A = (inside[:, order] & mask[None]).astype(float).transpose(1, 2, 0)  # (G, M, K)
+    common = A @ A.transpose(0, 2, 1)
+    counts = inside.sum(axis=0).astype(float)[order]
+    norm = np.sqrt(counts[:, :, None] * counts[:, None, :])
+    frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
+    mates = mask[:, :, None] & mask[:, None, :] & ~np.eye(M, dtype=bool)[None]
+    mean = (frac * mates).sum(axis=2) / np.maximum(mates.sum(axis=2), 1)
+    out[order[mask]] = mean[mask]
     return out
 
 
@@ -1005,22 +1079,23 @@ def _snr(loc: Localizer) -> np.ndarray:
 
 
 def _build(loc, status, xy, sigma, snr, params) -> Predictions:
-    est = []
-    for i, name in enumerate(loc.sensors):
-        s = snr[i]
-        snr_i = float(s) if np.isfinite(s) else None
-        has_xy = status[i] == OK and np.isfinite(xy[i]).all()
-        sig = float(sigma[i]) if has_xy and np.isfinite(sigma[i]) else None
-        est.append(
-            SensorEstimate(
-                sensor=name,
-                x_mm=float(xy[i, 0]) if has_xy else None,
-                y_mm=float(xy[i, 1]) if has_xy else None,
-                sigma_mm=sig,
-                snr_db=snr_i,
-                status=str(status[i]) if (has_xy or status[i] != OK) else DEAD,
-            )
+    # Plain Python floats in one conversion each (a live update builds this every touch).
+    has_xy = ((status == OK) & np.isfinite(xy).all(axis=1)).tolist()
+    sig_ok = np.isfinite(sigma).tolist()
+    snr_ok = np.isfinite(snr).tolist()
+    xs, ys = xy[:, 0].tolist(), xy[:, 1].tolist()
+    sigmas, snrs, statuses = sigma.tolist(), snr.tolist(), status.tolist()
+    est = [
+        SensorEstimate(
+            sensor=name,
+            x_mm=xs[i] if has_xy[i] else None,
+            y_mm=ys[i] if has_xy[i] else None,
+            sigma_mm=sigmas[i] if has_xy[i] and sig_ok[i] else None,
+            snr_db=snrs[i] if snr_ok[i] else None,
+            status=str(statuses[i]) if (has_xy[i] or statuses[i] != OK) else DEAD,
         )
+        for i, name in enumerate(loc.sensors)
+    ]
     return Predictions(NAME, est, params)
 
 
