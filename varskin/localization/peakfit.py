@@ -625,7 +625,7 @@ class Localizer:
         # Judged without the robust weights (which would hide exactly this touch): the
         # touch's response relative to the models' prediction, over the windows it is in.
         Pe = P0 + d
-        m, _ = pm.jacobian(Pe, tau, th, None, rho)
+        m = pm.model(Pe, tau, th, None, rho)
         fl = pm.floor(tau, th)
         bump = m - fl
         win = pm.window(Pe, th, min_radius, self.settings) * valid / (scale * scale)
@@ -950,21 +950,18 @@ def _predictions(loc: Localizer) -> Predictions:
         & (w < 20.0 * h)
     )
     drift = _drift_during_own_touches(loc, w, h)
-    for i in range(n):
-        if not f.fitted[i] or valid_counts[i] < 3:
-            status[i] = SPARSE
-        elif loc.rest is not None and _rest_saturated(loc, i) or K - f.n_clipped[i] < 3:
-            status[i] = SATURATED
-        elif collinear:
-            status[i] = COLLINEAR
-        elif not finite[i] or snr_fit[i] < loc.params["min_snr"] or th[i, pm.AMP] <= 0:
-            status[i] = DEAD
-        elif outside[i]:
-            status[i] = OUTSIDE
-        elif not sane[i]:
-            status[i] = IRREGULAR
-        elif sd[i] * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"]:
-            status[i] = UNCERTAIN
+    # The first reason that holds, in this order (a sensor gets one status).
+    reasons = [
+        (~f.fitted | (valid_counts < 3), SPARSE),
+        (_rest_saturated(loc) | (K - f.n_clipped < 3), SATURATED),
+        (np.full(n, collinear), COLLINEAR),
+        (~finite | (snr_fit < loc.params["min_snr"]) | (th[:, pm.AMP] <= 0), DEAD),
+        (outside, OUTSIDE),
+        (~sane, IRREGULAR),
+        (sd * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"], UNCERTAIN),
+    ]
+    for cond, reason in reversed(reasons):
+        status[cond] = reason
     # A clipped sensor that could not be located from its unclipped flanks: clipping is why.
     status[(status != OK) & (status != SPARSE) & (f.n_clipped > 0)] = SATURATED
     # A "peak" far weaker than the other sensors' is a wire ridge or crosstalk, not the
@@ -1058,12 +1055,15 @@ def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) ->
     return out
 
 
-def _rest_saturated(loc: Localizer, i: int) -> bool:
-    r = loc.rest[i]
-    if not loc._raw_counts() or not math.isfinite(r):
-        return False
-    sd = loc.rest_sd[i] if loc.rest_sd is not None and math.isfinite(loc.rest_sd[i]) else 1.0
-    return r >= ADC_MAX - max(3 * sd, 1.0) or r <= max(3 * sd, 1.0)
+def _rest_saturated(loc: Localizer) -> np.ndarray:
+    """(N,) sensors whose no-contact reading already sits at the ADC limit."""
+    n = len(loc.sensors)
+    if loc.rest is None or not loc._raw_counts():
+        return np.zeros(n, bool)
+    sd = loc.rest_sd if loc.rest_sd is not None else np.ones(n)
+    margin = np.maximum(3.0 * np.where(np.isfinite(sd), sd, 1.0), 1.0)
+    with np.errstate(invalid="ignore"):
+        return (loc.rest >= ADC_MAX - margin) | (loc.rest <= margin)
 
 
 def _snr(loc: Localizer) -> np.ndarray:
