@@ -299,12 +299,12 @@ class Localizer:
         if self._t0 is None:
             self._t0 = t
         self._t[k] = t
-        # Keep nearest-neighbour distances current: the probe spacing sets the window floor.
         if not (k and ((self._P[:k, 0] == x) & (self._P[:k, 1] == y)).any()):
             self._n_distinct += 1
-            delta = np.array([x, y]) - self._p_mean
+            delta = self._P[k] - self._p_mean
             self._p_mean += delta / self._n_distinct
-            self._p_scatter += np.outer(delta, np.array([x, y]) - self._p_mean)
+            self._p_scatter += np.outer(delta, self._P[k] - self._p_mean)
+        # Keep nearest-neighbour distances current: the probe spacing sets the window floor.
         if k:
             d = np.hypot(self._P[:k, 0] - x, self._P[:k, 1] - y)
             d = np.where(d > 1e-6, d, np.inf)
@@ -763,9 +763,9 @@ class Localizer:
         # in time fitted to the touches near the sensor only.
         if k:
             recent = _nanmedian_cols(self._V[max(0, k - RECENT_TOUCHES) : k] * self._sign)
-            rho = self._ridge_width(len(self.sensors), f.theta)
+            ridge = self._ridge_width(len(self.sensors), f.theta)
             zero = np.zeros((1, len(self.sensors)))
-            bump = pm.model(p[None], zero, f.theta, None, rho)[0] - pm.floor(zero, f.theta)[0]
+            bump = pm.model(p[None], zero, f.theta, None, ridge)[0] - pm.floor(zero, f.theta)[0]
             rise = (v_new - recent) / f.amp - bump
             new_top |= (
                 np.isfinite(rise)
