@@ -170,8 +170,9 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
     keep = member.any(axis=1) & designed
     first = in_group.argmax(axis=1)  # each wire's first sensor: its design and family
-    fams = np.unique(family[first])
-    rows = (family[first][None, :] == fams[:, None]) & keep[None, :]  # (F, G)
+    wire_family = family[first]
+    fams = np.unique(wire_family)
+    rows = (wire_family[None, :] == fams[:, None]) & keep[None, :]  # (F, G)
     rows &= (rows.sum(axis=1) >= 3)[:, None]
     if not rows.any():
         return mean, spread

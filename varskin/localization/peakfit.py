@@ -299,19 +299,21 @@ class Localizer:
         if self._t0 is None:
             self._t0 = t
         self._t[k] = t
-        if not (k and ((self._P[:k, 0] == x) & (self._P[:k, 1] == y)).any()):
-            self._n_distinct += 1
-            delta = self._P[k] - self._p_mean
-            self._p_mean += delta / self._n_distinct
-            self._p_scatter += np.outer(delta, self._P[k] - self._p_mean)
         # Keep nearest-neighbour distances current: the probe spacing sets the window floor.
+        distinct = True
         if k:
             d = np.hypot(self._P[:k, 0] - x, self._P[:k, 1] - y)
+            distinct = not (d == 0.0).any()  # exactly equal points only
             d = np.where(d > 1e-6, d, np.inf)
             self._nn[k] = d.min()
             self._nn[:k] = np.minimum(self._nn[:k], d)
         else:
             self._nn[k] = np.inf
+        if distinct:
+            self._n_distinct += 1
+            delta = self._P[k] - self._p_mean
+            self._p_mean += delta / self._n_distinct
+            self._p_scatter += np.outer(delta, self._P[k] - self._p_mean)
         self._k += 1
         return True
 
