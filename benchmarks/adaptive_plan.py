@@ -163,6 +163,17 @@ class UniformRun:
 
 
 @dataclass
+class SessionRun:
+    """The default uniform plan run as a session: the batch result after every touch."""
+
+    nx: int
+    ny: int
+    rms: list[float] = field(default_factory=list)
+    located: list[int] = field(default_factory=list)
+    cum_time_s: list[float] = field(default_factory=list)
+
+
+@dataclass
 class AdaptiveRun:
     rms: list[float] = field(default_factory=list)  # after touch k+1 (batch solve)
     located: list[int] = field(default_factory=list)
@@ -182,6 +193,23 @@ def run_uniform(patch: Patch, seed: int, nx: int, ny: int, args, rig: RigModel) 
     pred = localize(s.point_logs(), method="peakfit", patch=patch)
     rms, n = score(pred, s.scene.true_xy)
     return UniformRun(nx, ny, len(pts), rms, n, float(np.nansum(rig.per_touch_s(pts))))
+
+
+def run_uniform_session(
+    patch: Patch, seed: int, nx: int, ny: int, args, rig: RigModel
+) -> SessionRun:
+    """Touch the grid in its planned (serpentine) order, as ``varskin calibrate`` does."""
+    pts = uniform_points(patch, nx, ny, args.margin)
+    s = SimSession(patch, seed, args.frames, rig)
+    loc = Localizer(patch.names, s.rest, s.rest_sd, patch=patch)
+    out = SessionRun(nx, ny)
+    out.cum_time_s = list(np.cumsum(rig.per_touch_s(pts)))
+    for x, y in pts:
+        loc.update(s.touch(float(x), float(y)))
+        rms, n = score(loc.result(), s.scene.true_xy)
+        out.rms.append(rms)
+        out.located.append(n)
+    return out
 
 
 def planner_for(patch: Patch, args) -> AdaptivePlanner:
@@ -238,7 +266,8 @@ def _seed_job(job):
     grids.sort(key=lambda g: (g[0] * g[1], g[0]))
     uniform = [run_uniform(patch, seed, nx, ny, args, rig) for nx, ny in grids]
     adaptive = run_adaptive(patch, seed, args, rig)
-    return seed, uniform, adaptive
+    session = run_uniform_session(patch, seed, *args.session_grid, args, rig)
+    return seed, uniform, adaptive, session
 
 
 # --- report -----------------------------------------------------------------------------
@@ -248,7 +277,7 @@ def goal(rms: float, located: int, n: int) -> bool:
     return located == n and np.isfinite(rms) and rms <= GOAL_RMS_MM
 
 
-def first_goal(run: AdaptiveRun, n: int) -> int | None:
+def first_goal(run: AdaptiveRun | SessionRun, n: int) -> int | None:
     for k, (r, m) in enumerate(zip(run.rms, run.located, strict=True)):
         if goal(r, m, n):
             return k + 1
@@ -265,7 +294,7 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
     n = len(patch.sensors)
     lines = []
     rows = []
-    for seed, uniform, adaptive in results:
+    for seed, uniform, adaptive, _ in results:
         ok_u = [u for u in uniform if goal(u.rms, u.located, n)]
         u_best = min(ok_u, key=lambda u: (u.touches, u.time_s)) if ok_u else None
         k_a = first_goal(adaptive, n)
@@ -319,7 +348,7 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
     )
     # A fixed grid must be chosen before the session: which grid meets the goal on every seed?
     grids = {}
-    for _, uniform, _ in results:
+    for _, uniform, _, _ in results:
         for u in uniform:
             grids.setdefault((u.nx, u.ny, u.touches), []).append(goal(u.rms, u.located, n))
     every = [g for g, v in sorted(grids.items(), key=lambda kv: kv[0][2]) if all(v)]
@@ -348,14 +377,53 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
         f"The adaptive plan stopped at the goal on {ok_stop}/{len(rows)} seeds "
         f"(target sigma {args.target} mm, budget {args.budget})."
     )
-    plan_ms = np.concatenate([np.array(a.plan_ms) for _, _, a in results])
-    loc_ms = np.concatenate([np.array(a.localize_ms) for _, _, a in results])
+    plan_ms = np.concatenate([np.array(a.plan_ms) for _, _, a, _ in results])
+    loc_ms = np.concatenate([np.array(a.localize_ms) for _, _, a, _ in results])
     lines.append(
         f"Planner choice: median {np.median(plan_ms):.1f} ms, max {plan_ms.max():.1f} ms per "
         f"touch; localizer ({args.planner_input}) median {np.median(loc_ms):.0f} ms per touch."
     )
     if not rig.available:
         lines.append(f"Rig time: not estimated ({rig.why}); touches only.")
+    lines += ["", *session_report(results, n, args)]
+    return lines
+
+
+def session_report(results, n: int, args) -> list[str]:
+    """The two plans as sessions run them: touches into the session until the goal."""
+    nx, ny = args.session_grid
+    lines = [
+        f"| seed | uniform {nx}x{ny} in session: touches at goal | its time | adaptive "
+        "touches at goal | its time | ratio | time ratio |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    rows = []
+    for seed, _, adaptive, session in results:
+        k_u, k_a = first_goal(session, n), first_goal(adaptive, n)
+        t_u = session.cum_time_s[k_u - 1] if k_u else None
+        t_a = adaptive.cum_time_s[k_a - 1] if k_a else None
+        rows.append((k_u, t_u, k_a, t_a))
+        lines.append(
+            f"| {seed} | {fmt(k_u)} | {fmt(t_u, 0, ' s')} | {fmt(k_a)} | {fmt(t_a, 0, ' s')} "
+            f"| {fmt(k_a / k_u if k_u and k_a else None, 2)} "
+            f"| {fmt(t_a / t_u if t_u and t_a else None, 2)} |"
+        )
+
+    def med(i):
+        # A run that never reached the goal counts as infinite, as in the table above.
+        return float(np.median([np.inf if r[i] is None else r[i] for r in rows]))
+
+    both = [r for r in rows if r[0] and r[2]]
+    ratio = float(np.median([r[2] / r[0] for r in both])) if both else None
+    t_ratio = float(np.median([r[3] / r[1] for r in both])) if both else None
+    lines.append(
+        f"| **median** | **{fmt(med(0), 1)}** | {fmt(med(1), 0, ' s')} | **{fmt(med(2), 1)}** "
+        f"| {fmt(med(3), 0, ' s')} | **{fmt(ratio, 2)}** | {fmt(t_ratio, 2)} |"
+    )
+    lines.append(
+        f"Uniform {nx}x{ny} in its planned order with the batch result after every touch; "
+        f"ratios over the {len(both)} seed(s) where both reached the goal."
+    )
     return lines
 
 
@@ -385,7 +453,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     warnings.simplefilter("ignore", RuntimeWarning)
     # Uniform: per grid, the median over seeds.
     per_grid: dict[tuple[int, int], list[UniformRun]] = {}
-    for _, uniform, _ in results:
+    for _, uniform, _, _ in results:
         for u in uniform:
             per_grid.setdefault((u.nx, u.ny), []).append(u)
     gx = np.array([v[0].touches for v in per_grid.values()])
@@ -393,26 +461,30 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     g_time = np.array([np.median([u.time_s for u in v]) for v in per_grid.values()])
     g_all = np.array([np.mean([u.located == n for u in v]) >= 0.5 for v in per_grid.values()])
     g_loc = np.array([np.median([u.located for u in v]) for v in per_grid.values()])
-    # Adaptive: per touch count, the median over seeds; a finished run keeps its final result.
-    kmax = max(len(a.rms) for _, _, a in results)
 
-    def held(key):
-        out = np.full((len(results), kmax), np.nan)
-        for i, (_, _, a) in enumerate(results):
+    # Adaptive: per touch count, the median over seeds; a finished run keeps its final result.
+    def held(key, which=2):
+        runs = [r[which] for r in results]
+        out = np.full((len(runs), max(len(a.rms) for a in runs)), np.nan)
+        for i, a in enumerate(runs):
             v = np.array(getattr(a, key), float)
             out[i, : len(v)] = v
             out[i, len(v) :] = v[-1]
-        return out
+        return np.nanmedian(out, axis=0)
 
-    a_rms = np.nanmedian(held("rms"), axis=0)
-    a_loc = np.nanmedian(held("located"), axis=0)
-    ks = np.arange(1, kmax + 1)
+    a_rms, a_loc = held("rms"), held("located")
+    ks = np.arange(1, len(a_rms) + 1)
     # Time of touch k for a seed that stopped earlier: its stop time (it is done).
-    a_time = np.nanmedian(held("cum_time_s"), axis=0)
+    a_time = held("cum_time_s")
+    # The default grid touched in its planned order, as a session runs it.
+    s_rms, s_loc, s_time = held("rms", 3), held("located", 3), held("cum_time_s", 3)
+    s_ks = np.arange(1, len(s_rms) + 1)
+    s_label = "uniform {}x{} in session".format(*args.session_grid)
     panels = 3 if rig.available else 2
     fig, axes = plt.subplots(1, panels, figsize=(5.0 * panels, 4.2))
     ax = axes[0]
     ax.plot(ks, a_rms, "-", color="C1", label="adaptive (median over seeds)")
+    ax.plot(s_ks, s_rms, "--", color="C2", label=s_label)
     _scatter_grids(ax, gx, g_rms, g_all)
     ax.axhline(GOAL_RMS_MM, color="grey", ls=":", lw=1)
     ax.set_xlabel("touches")
@@ -423,6 +495,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     ax.set_title(f"{patch.name}, robot probe, seeds {min(seeds)}-{max(seeds)}")
     ax = axes[1]
     ax.plot(ks, a_loc, "-", color="C1", label="adaptive")
+    ax.plot(s_ks, s_loc, "--", color="C2", label=s_label)
     ax.scatter(gx, g_loc, color="C0", s=14, label="uniform grids")
     ax.axhline(n, color="grey", ls=":", lw=1)
     ax.set_xlabel("touches")
@@ -431,6 +504,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
     if rig.available:
         ax = axes[2]
         ax.plot(a_time / 60.0, a_rms, "-", color="C1", label="adaptive")
+        ax.plot(s_time / 60.0, s_rms, "--", color="C2", label=s_label)
         _scatter_grids(ax, g_time / 60.0, g_rms, g_all)
         ax.axhline(GOAL_RMS_MM, color="grey", ls=":", lw=1)
         ax.set_xlabel("estimated rig time (min)")
@@ -477,6 +551,12 @@ def main(argv: list[str] | None = None) -> None:
         choices=("result", "update"),
         default="result",
         help="what the planner sees after each touch: the batch result() or the live update()",
+    )
+    p.add_argument(
+        "--session-grid",
+        type=_grid,
+        default=(20, 5),
+        help="uniform grid also run as a session, touch by touch (default 20x5, the paper's)",
     )
     p.add_argument("--launch", default="launch/sim.yaml", help="rig for the time estimate")
     p.add_argument("--jobs", type=int, default=1, help="seeds run in parallel")

@@ -270,6 +270,24 @@ def test_sensor_probed_first_while_its_offset_settles(patch_a, seed, drift, i):
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
+@pytest.mark.parametrize(("drift", "i"), [(120.0, 0), (-120.0, 1)], ids=["rises", "falls"])
+def test_a_drifting_sensor_probed_again_once_settled_is_located(patch_a, seed, drift, i):
+    """The same sensor, with the first three columns probed again after the grid (as the
+    `drifting` status advises): its later touches see a steady floor and place it, although
+    its first touches, still in its window, moved its floor by about its peak."""
+    scene = Scene.create(patch_a, seed)
+    scene.drift[i], scene.peak[i] = drift, 90.0
+    grid = uniform_grid(patch_a, 20, 5)
+    s = simulate_session(
+        patch_a, np.vstack([grid, grid[:15]]), probe="robot", seed=seed, scene=scene
+    )
+    pred = check(peakfit.localize(s.point_logs()), len(patch_a.sensors))
+    est = pred.estimates[i]
+    assert est.status == OK, est.status
+    assert err(pred, s.truth, i) <= min(1.0, 2.0 * est.sigma_mm), (err(pred, s.truth, i), est)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_a_typical_drift_during_its_own_touches_is_located(patch_a, seed):
     """A typical sensor (170 counts) whose offset moves by a typical 45 counts, most of it
     during its own touches, is fitted as drift and located: the flag is for the extreme."""

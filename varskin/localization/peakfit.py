@@ -89,6 +89,9 @@ WEAK = "weak"  # peak far below the other sensors': not probed near it, or damag
 # first while the board settles). Re-probe near it once the offsets are steady.
 DRIFTING = "drifting"
 DRIFT_FRACTION = 0.5
+# A `drifting` sensor probed again after the probe was away for more than this many
+# touches' time is re-fitted from the touches since it came back (_refit_after_settling).
+REPROBE_AWAY_TOUCHES = 4
 # Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
 # units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
 # 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
@@ -243,6 +246,9 @@ class Localizer:
         self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
         self._sign = 1.0
         self._spacing_used: float | None = None
+        # Per sensor, the session time (min) of the first touch its fit may use: -inf, or
+        # later for a sensor whose offset was still settling during its first touches.
+        self._t_from = np.full(n, -np.inf)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -425,6 +431,7 @@ class Localizer:
         V = self._V[:K][:, cols] * self._sign
         clipped = self._clipped(cols)
         valid = np.isfinite(V) & ~clipped & ~self._missed[:K, None]
+        valid &= tau[:, None] >= self._t_from[cols][None, :]
         Vv = np.where(valid, V, np.nan)
         f = self.fit
         with np.errstate(all="ignore"):
@@ -695,6 +702,7 @@ class Localizer:
         self._v_d[:K] = 0.0
         self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, 0.5, None
         self.fit.fitted[:] = False
+        self._t_from[:] = -np.inf
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)
@@ -702,7 +710,48 @@ class Localizer:
             self._solve(np.arange(n), np.zeros(n, bool))
             if self._k >= 3:
                 self._polish(SOLVER_ROUNDS[self.params["solver"]])
+                self._refit_after_settling()
         self._dirty = False
+
+    def _refit_after_settling(self) -> None:
+        """Re-fit each `drifting` sensor from the later half of its window's touches.
+
+        A sensor probed first while its offset still settled is `drifting` however often it
+        is probed again: its first touches stay in its window, and the slow floor model
+        cannot follow them. Its later touches, once re-probed, see a steady floor and place
+        it alone. The re-fit is kept only where it passes every check (`drifting` included,
+        judged on the touches it used); otherwise the sensor keeps its fit and its status.
+        """
+        f = self.fit
+        h = self.spacing()
+        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        with np.errstate(all="ignore"):
+            drift = _drift_during_own_touches(self, w, h)
+        cols = np.flatnonzero(f.fitted & np.isfinite(drift) & (drift > DRIFT_FRACTION))
+        if cols.size == 0:
+            return
+        tau = self._tau()
+        inside = _window_members(self, f.theta[:, :2], w, h)[:, cols]
+        # The probe must have left and come back: a pass that merely went on over the
+        # sensor (a serpentine grid's next columns) is the same settling, seen from one side.
+        away = REPROBE_AWAY_TOUCHES * float(np.median(np.diff(tau))) if tau.size > 1 else 0.0
+        for j, c in enumerate(cols):
+            t = np.sort(tau[inside[:, j]])
+            back = np.flatnonzero(np.diff(t) > away)
+            if away > 0 and back.size:
+                self._t_from[c] = t[back[0] + 1]
+        cols = cols[np.isfinite(self._t_from[cols])]
+        if cols.size == 0:
+            return
+        kept = {name: getattr(f, name)[cols].copy() for name in _SensorFit.__dataclass_fields__}
+        self._solve(cols, np.zeros(cols.size, bool))
+        self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
+        status = np.array([e.status for e in _predictions(self)], dtype=object)
+        back = cols[status[cols] != OK]
+        if back.size:
+            for name, v in kept.items():
+                getattr(f, name)[back] = v[status[cols] != OK]
+            self._t_from[back] = -np.inf
 
     def update(self, log: PointLog) -> Predictions:
         """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
@@ -1033,7 +1082,7 @@ def _window_members(loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float) -> 
     radius = np.maximum(s.window_widths * w, s.window_spacings * h)
     P = loc._P[: loc.n_logs] + loc._dxy[: loc.n_logs]
     d = np.hypot(P[:, 0:1] - xy[None, :, 0], P[:, 1:2] - xy[None, :, 1])
-    return d <= radius[None, :]
+    return (d <= radius[None, :]) & (loc._tau()[:, None] >= loc._t_from[None, :])
 
 
 def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) -> np.ndarray:
