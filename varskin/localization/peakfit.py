@@ -714,7 +714,7 @@ class Localizer:
         self._dirty = False
 
     def _refit_after_settling(self) -> None:
-        """Re-fit each `drifting` sensor from the later half of its window's touches.
+        """Re-fit each `drifting` sensor from the touches since the probe came back to it.
 
         A sensor probed first while its offset still settled is `drifting` however often it
         is probed again: its first touches stay in its window, and the slow floor model
@@ -747,11 +747,11 @@ class Localizer:
         self._solve(cols, np.zeros(cols.size, bool))
         self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
         status = np.array([e.status for e in _predictions(self)], dtype=object)
-        back = cols[status[cols] != OK]
-        if back.size:
+        failed = status[cols] != OK
+        if failed.any():
             for name, v in kept.items():
-                getattr(f, name)[back] = v[status[cols] != OK]
-            self._t_from[back] = -np.inf
+                getattr(f, name)[cols[failed]] = v[failed]
+            self._t_from[cols[failed]] = -np.inf
 
     def update(self, log: PointLog) -> Predictions:
         """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
