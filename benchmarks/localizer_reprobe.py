@@ -6,7 +6,7 @@ still flags it. Patch A and B, seeds 1-12, sensor 0 rising or sensor 1 falling b
 counts with a 90-count peak (the hard-case test's construction), robot probe, 20 x 5 grid;
 the re-probe touches the grid's first three columns again after the grid.
 
-    python benchmarks/localizer_reprobe.py     # about 20 s
+    python benchmarks/localizer_reprobe.py     # about 8 s
 """
 
 import numpy as np
