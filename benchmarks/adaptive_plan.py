@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from varskin.cli.simulate import parse_grid
 from varskin.localization import localize
 from varskin.localization.peakfit import Localizer
 from varskin.patch import Patch, resolve_patch
@@ -284,6 +285,12 @@ def first_goal(run: AdaptiveRun | SessionRun, n: int) -> int | None:
     return None
 
 
+def median_never_inf(values) -> float | None:
+    """Median where None (a run that never reached the goal) counts as worse than all: inf."""
+    v = [np.inf if x is None else x for x in values]
+    return float(np.median(v)) if v else None
+
+
 def fmt(v, digits=0, unit=""):
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
         return "-"
@@ -328,9 +335,7 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
             # Ratios only where both planners reached the goal (said below the table).
             v = [r[key] for r in rows if r[key] is not None]
             return float(np.median(v)) if v else None
-        # A seed that never reached the goal counts as worse than every other: inf.
-        v = [np.inf if r[key] is None else r[key] for r in rows]
-        return float(np.median(v)) if v else None
+        return median_never_inf([r[key] for r in rows])
 
     for r in rows:
         lines.append(
@@ -410,8 +415,7 @@ def session_report(results, n: int, args) -> list[str]:
         )
 
     def med(i):
-        # A run that never reached the goal counts as infinite, as in the table above.
-        return float(np.median([np.inf if r[i] is None else r[i] for r in rows]))
+        return median_never_inf([r[i] for r in rows])
 
     both = [r for r in rows if r[0] and r[2]]
     ratio = float(np.median([r[2] / r[0] for r in both])) if both else None
@@ -518,10 +522,7 @@ def plot(results, patch: Patch, args, rig: RigModel, path: Path) -> None:
 
 
 def _grid(text: str) -> tuple[int, int] | None:
-    if text.lower() == "none":
-        return None
-    a, b = text.lower().split("x")
-    return int(a), int(b)
+    return None if text.lower() == "none" else parse_grid(text)
 
 
 def _range(text: str) -> tuple[int, int]:

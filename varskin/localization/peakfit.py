@@ -725,13 +725,14 @@ class Localizer:
         f = self.fit
         h = self.spacing()
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        inside = _window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
-            drift = _drift_during_own_touches(self, w, h)
+            drift = _drift_during_own_touches(self, inside)
         cols = np.flatnonzero(f.fitted & np.isfinite(drift) & (drift > DRIFT_FRACTION))
         if cols.size == 0:
             return
         tau = self._tau()
-        inside = _window_members(self, f.theta[:, :2], w, h)[:, cols]
+        inside = inside[:, cols]
         # The probe must have left and come back: a pass that merely went on over the
         # sensor (a serpentine grid's next columns) is the same settling, seen from one side.
         away = REPROBE_AWAY_TOUCHES * float(np.median(np.diff(tau))) if tau.size > 1 else 0.0
@@ -1005,7 +1006,7 @@ def _predictions(loc: Localizer) -> Predictions:
         & (w > 0.1 * h)
         & (w < 20.0 * h)
     )
-    drift = _drift_during_own_touches(loc, w, h)
+    drift = _drift_during_own_touches(loc, _window_members(loc, th[:, :2], w, h))
     # The first reason that holds, in this order (a sensor gets one status).
     reasons = [
         (~f.fitted | (valid_counts < 3), SPARSE),
@@ -1061,13 +1062,13 @@ def _predictions(loc: Localizer) -> Predictions:
     return _build(loc, status, xy, sigma, snr, params)
 
 
-def _drift_during_own_touches(loc: Localizer, w: np.ndarray, h: float) -> np.ndarray:
+def _drift_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
     """(N,) how far each sensor's fitted floor moves across the touches in its own fit
-    window, in units of its fitted peak height (inf where there is no peak)."""
+    window (``inside``, (K, N) from ``_window_members`` at the fitted peaks), in units of
+    its fitted peak height (inf where there is no peak)."""
     f = loc.fit
     tau = loc._tau()[:, None] - f.tc[None, :]
     fl = pm.floor(tau, f.theta)
-    inside = _window_members(loc, f.theta[:, :2], w, h)
     hi = np.where(inside, fl, -np.inf).max(axis=0)
     lo = np.where(inside, fl, np.inf).min(axis=0)
     span = np.where(inside.any(axis=0), hi - lo, 0.0)
