@@ -21,22 +21,22 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
-import resource  # noqa: E402
-import statistics  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-import tracemalloc  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import resource
+import statistics
+import sys
+import time
+import tracemalloc
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from varskin.localization import peakfit  # noqa: E402
-from varskin.patch import builtin_patch, patch_from_dict  # noqa: E402
-from varskin.predictions import OK  # noqa: E402
-from varskin.simulate import simulate_session, uniform_grid  # noqa: E402
+from varskin.localization import peakfit
+from varskin.patch import builtin_patch, patch_from_dict
+from varskin.predictions import OK
+from varskin.simulate import simulate_session, uniform_grid
 
 
 def full_board():

@@ -19,15 +19,15 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
-import time  # noqa: E402
+import argparse
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from varskin.localization import localize, peakfit  # noqa: E402
-from varskin.patch import builtin_patch  # noqa: E402
-from varskin.predictions import OK  # noqa: E402
-from varskin.simulate import simulate_session, uniform_grid  # noqa: E402
+from varskin.localization import localize, peakfit
+from varskin.patch import builtin_patch
+from varskin.predictions import OK
+from varskin.simulate import simulate_session, uniform_grid
 
 SOLVERS = ("alternate", "joint")
 

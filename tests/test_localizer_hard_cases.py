@@ -295,3 +295,35 @@ def test_a_typical_drift_during_its_own_touches_is_located(patch_a, seed):
     est, e = _probed_first_while_drifting(patch_a, seed, drift, peak=170.0)
     assert est.status == OK, est.status
     assert e <= min(TOL_MM, 2.0 * est.sigma_mm)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize(("patch_name", "i"), [("patch_a", 19), ("patch_b", 13)])
+def test_an_offset_settling_faster_than_its_peak_is_not_taken_for_the_peak(
+    request, patch_name, i, seed
+):
+    """A weak sensor far from where the session starts (86 counts) whose offset falls by
+    140 counts with a 20 s time constant: its map's top is at the session's first touches,
+    where the offset was still high. A fit that takes that top is `ok` 100-130 mm off with
+    a sigma of 3-5 mm (seen with the second-peak check disabled); the sensor's real bump,
+    backed by more touches, must win."""
+    patch = request.getfixturevalue(patch_name)
+    scene = Scene.create(patch, seed, SceneParams(drift_tau_s=20.0))
+    scene.drift[i], scene.peak[i] = -140.0, 86.0
+    s = simulate_session(patch, uniform_grid(patch, 20, 5), probe="finger", seed=seed, scene=scene)
+    pred = check(peakfit.localize(s.point_logs(), patch=patch), len(patch.sensors))
+    est = pred.estimates[i]
+    assert est.status == OK, est.status
+    assert err(pred, s.truth, i) <= min(1.0, 2.0 * est.sigma_mm), (err(pred, s.truth, i), est)
+
+
+def test_a_map_with_two_equal_bumps_far_apart_is_irregular_not_one_of_them(patch_b, grid):
+    """Sensor S5's map plus S23's, scaled to the same height (a short between two sensors'
+    lines): two peaks that explain the data equally well. Neither is the answer."""
+    s = simulate_session(patch_b, grid, probe="robot", seed=1)
+    logs = s.point_logs()
+    v = logs.values
+    v[:, 4] = v[:, 4] + v[:, 22] * (v[:, 4].max() / v[:, 22].max())
+    pred = check(peakfit.localize(logs), 30)
+    assert pred.estimates[4].status == "irregular"
+    assert ok_errors(pred, s.truth).max() <= TOL_MM

@@ -391,7 +391,6 @@ def fit(
     res = Uz - m
     win = fit_window(theta, np.arange(S))
     wts = robust_weights(win, res, scale)
-    wsum = np.maximum(win.sum(axis=0), 1e-12)
     H, _ = normal_equations(wts, J, res)
     H = H + prior_hessian(theta, np.arange(S)) * (scale * scale)[:, None, None]
     # Residual variance of the fit (robustly weighted), with the dof the window leaves.
@@ -417,7 +416,6 @@ def fit(
             part = (Ma * Ma * (v_d * (jx * jx + jy * jy) + v_lg * bump * bump)).sum(axis=1)
             cov_xy[:, ax, ax] += part
             var_touch += 0.5 * part
-    del wsum
     # A sensor that wandered beyond the gathered touches would miss data: not converged.
     strayed = np.hypot(*(theta[:, :2] - start_xy).T) > reach - 1.5 * np.maximum(
         s.window_widths * np.exp(0.5 * (theta[:, LW] + theta[:, LWY])), min_radius

@@ -92,6 +92,12 @@ DRIFT_FRACTION = 0.5
 # A `drifting` sensor probed again after the probe was away for more than this many
 # touches' time is re-fitted from the touches since it came back (_refit_after_settling).
 REPROBE_AWAY_TOUCHES = 4
+# A second peak of a map (_second_peaks): its detrended height relative to the fitted
+# peak's, the radius (probe spacings) of its backing touch and of the start search around
+# it, and by how much one peak's effective touch count must beat the other's to win.
+SECOND_PEAK_FRACTION = 0.5
+SEED_RADIUS_SPACINGS = 1.5
+SECOND_PEAK_RATIO = 1.5
 # Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
 # units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
 # 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
@@ -249,6 +255,10 @@ class Localizer:
         # Per sensor, the session time (min) of the first touch its fit may use: -inf, or
         # later for a sensor whose offset was still settling during its first touches.
         self._t_from = np.full(n, -np.inf)
+        # Per sensor, the touch near which its fit must start (-1: the map's top), and
+        # whether its map has two peaks that fit equally well (see _second_peaks).
+        self._seed_k = np.full(n, -1)
+        self._two_peaks = np.zeros(n, bool)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -410,6 +420,28 @@ class Localizer:
         clip = (raw >= ADC_MAX - margin[None, :]) | (raw <= margin[None, :])
         return clip & raw_like[None, :]
 
+    def _maps(self, cols: np.ndarray, clipped: np.ndarray):
+        """Sensors ``cols``' maps as fitted: (U, D, valid, floor, amp), each (K, S) or (S,).
+
+        U is each map in its own units (median 0, top 1); D is U less its slow floor trend,
+        so that a drift as large as the peak does not put the map's top at the session's
+        first or last touches.
+        """
+        K = self._k
+        tau = self._tau()
+        V = self._V[:K][:, cols] * self._sign
+        valid = np.isfinite(V) & ~clipped & ~self._missed[:K, None]
+        valid &= tau[:, None] >= self._t_from[cols][None, :]
+        Vv = np.where(valid, V, np.nan)
+        with np.errstate(all="ignore"):
+            floor = _nanmedian_cols(Vv)
+            top = np.nanmax(Vv, axis=0)
+        floor = np.where(np.isfinite(floor), floor, 0.0)
+        amp = top - floor
+        amp = np.where(np.isfinite(amp) & (amp > 0), amp, 1.0)
+        U = (np.where(valid, V, 0.0) - floor[None, :]) / amp[None, :]
+        return U, U - _floor_trend(U, valid), valid, floor, amp
+
     def _raw_counts(self) -> bool:
         """Do rest values look like Muca ADC counts (so ADC clipping can be judged)?"""
         if self._raw is None:
@@ -428,30 +460,26 @@ class Localizer:
             return
         P = self._P[:K] + self._dxy[:K]
         tau = self._tau()
-        V = self._V[:K][:, cols] * self._sign
         clipped = self._clipped(cols)
-        valid = np.isfinite(V) & ~clipped & ~self._missed[:K, None]
-        valid &= tau[:, None] >= self._t_from[cols][None, :]
-        Vv = np.where(valid, V, np.nan)
+        U, D, valid, floor, amp = self._maps(cols, clipped)
         f = self.fit
-        with np.errstate(all="ignore"):
-            floor = _nanmedian_cols(Vv)
-            top = np.nanmax(Vv, axis=0)
-        floor = np.where(np.isfinite(floor), floor, 0.0)
-        amp = top - floor
-        amp = np.where(np.isfinite(amp) & (amp > 0), amp, 1.0)
-        U = (np.where(valid, V, 0.0) - floor[None, :]) / amp[None, :]
         nz = self._noise[:K][:, cols]
         with np.errstate(all="ignore"):
             noise = _nanmedian_cols(nz) / amp
         noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
         h = self.spacing()
         min_radius = self.settings.window_spacings * h
-        # The map's top after removing the slow floor trend: a drift as large as the peak
-        # must not put the start at the session's first or last touches.
-        D = U - _floor_trend(U, valid)
-        theta0 = self._initial(P, D, valid, h, need=np.zeros(cols.size, bool))
-        kmax = np.argmax(np.where(valid, D, -np.inf), axis=0)
+        # The start: the top of the detrended map D, or near the touch a second-peak check
+        # chose (_second_peaks).
+        near = valid.copy()
+        seeded = self._seed_k[cols] >= 0
+        if seeded.any():
+            pk = P[self._seed_k[cols][seeded]]
+            d = np.hypot(P[:, 0:1] - pk[None, :, 0], P[:, 1:2] - pk[None, :, 1])
+            near[:, seeded] &= d <= SEED_RADIUS_SPACINGS * h
+            near[:, ~near.any(axis=0)] = valid[:, ~near.any(axis=0)]
+        theta0 = self._initial(P, D, near, h, need=np.zeros(cols.size, bool))
+        kmax = np.argmax(np.where(near, D, -np.inf), axis=0)
         tc = tau[kmax]
         tau = tau[:, None] - tc[None, :]
         start = theta0[:, :2].copy()
@@ -703,6 +731,8 @@ class Localizer:
         self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, 0.5, None
         self.fit.fitted[:] = False
         self._t_from[:] = -np.inf
+        self._seed_k[:] = -1
+        self._two_peaks[:] = False
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)
@@ -710,6 +740,7 @@ class Localizer:
             self._solve(np.arange(n), np.zeros(n, bool))
             if self._k >= 3:
                 self._polish(SOLVER_ROUNDS[self.params["solver"]])
+                self._second_peaks()
                 self._refit_after_settling()
         self._dirty = False
 
@@ -753,6 +784,67 @@ class Localizer:
             for name, v in kept.items():
                 getattr(f, name)[cols[failed]] = v[failed]
             self._t_from[cols[failed]] = -np.inf
+
+    def _second_peaks(self) -> None:
+        """Fit again from a second peak of a map, where one stands far from the fitted one.
+
+        The model assumes one bump per map. An offset that settles by more than the peak
+        while the session starts leaves a false top at the first touches, and the fit may
+        take it: `ok`, 100 mm off, sigma 3-5 mm, while the real bump stands elsewhere
+        (benchmarks/localizer_stress.py, drift 1-2x the peak). A map's highest detrended
+        reading outside the fit's window (at the probe's shared footprint), at least
+        SECOND_PEAK_FRACTION of the highest inside and backed by a neighbouring touch, is a
+        second peak; the sensor is fitted again from there. The peak that more touches
+        agree with (effective count, SECOND_PEAK_RATIO) wins, whatever its status: a real
+        bump that is `drifting` beats a confident fit to a settling offset. Only a bump is
+        a rival: a fit that ran off beyond the probes or failed its checks is "backed" by
+        touches that merely show no bump. Two `ok` peaks about equally backed make the
+        sensor `irregular`: the map does not say which one is the sensor.
+        """
+        f = self.fit
+        K = self._k
+        n = len(self.sensors)
+        cols = np.flatnonzero(f.fitted & np.isfinite(f.theta).all(axis=1))
+        if cols.size == 0:
+            return
+        h = self.spacing()
+        P = self._P[:K] + self._dxy[:K]
+        _, D, valid, _, _ = self._maps(cols, self._clipped(cols))
+        # At the shared footprint: a fit whose own width collapsed must not take its
+        # bump's other flank for a second peak.
+        lw = f.theta[:, [pm.LW, pm.LWY]] if self.shared_lw is None else self.shared_lw[None, :]
+        w = np.broadcast_to(np.exp(0.5 * lw.sum(axis=1)), (n,))
+        inside = _window_members(self, f.theta[:, :2], w, h)[:, cols]
+        Dv = np.where(valid, D, -np.inf)
+        top_in = np.where(inside, Dv, -np.inf).max(axis=0)
+        out = np.where(inside, -np.inf, Dv)
+        k2 = np.argmax(out, axis=0)
+        d2 = out[k2, np.arange(cols.size)]
+        d = np.hypot(P[:, 0:1] - P[k2][None, :, 0], P[:, 1:2] - P[k2][None, :, 1])
+        near = (d > 0) & (d <= SEED_RADIUS_SPACINGS * h)
+        backed = (near & (Dv >= 0.5 * d2[None, :])).any(axis=0)
+        cand = np.isfinite(d2) & (d2 > 0) & (d2 >= SECOND_PEAK_FRACTION * top_in) & backed
+        if not cand.any():
+            return
+        c = cols[cand]
+        before = np.array([e.status for e in _predictions(self)], dtype=object)[c]
+        kept = {name: getattr(f, name)[c].copy() for name in _SensorFit.__dataclass_fields__}
+        self._seed_k[c] = k2[cand]
+        self._solve(c, np.zeros(c.size, bool))
+        self._solve(c, np.ones(c.size, bool), max_iter=POLISH_MAX_ITER)
+        after = np.array([e.status for e in _predictions(self)], dtype=object)[c]
+        radius = np.maximum(self.settings.window_widths * w[c], self.settings.window_spacings * h)
+        # A fit from the second peak that came back to the first is no second opinion.
+        apart = np.hypot(*(f.theta[c, :2] - kept["theta"][:, :2]).T) > radius
+        rival = apart & ((after == OK) | (after == DRIFTING))
+        n_old, n_new = kept["n_eff"], f.n_eff[c]
+        new_wins = rival & (n_new >= SECOND_PEAK_RATIO * n_old)
+        tie = rival & ~new_wins & (n_old < SECOND_PEAK_RATIO * n_new)
+        restore = ~new_wins
+        for name, v in kept.items():
+            getattr(f, name)[c[restore]] = v[restore]
+        self._seed_k[c[restore]] = -1
+        self._two_peaks[c[tie & (after == OK) & (before == OK)]] = True
 
     def update(self, log: PointLog) -> Predictions:
         """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
@@ -1014,7 +1106,7 @@ def _predictions(loc: Localizer) -> Predictions:
         (np.full(n, collinear), COLLINEAR),
         (~finite | (snr_fit < loc.params["min_snr"]) | (th[:, pm.AMP] <= 0), DEAD),
         (outside, OUTSIDE),
-        (~sane, IRREGULAR),
+        (~sane | loc._two_peaks, IRREGULAR),
         (sd * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"], UNCERTAIN),
     ]
     for cond, reason in reversed(reasons):
