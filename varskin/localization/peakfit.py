@@ -799,7 +799,8 @@ class Localizer:
         bump that is `drifting` beats a confident fit to a settling offset. Only a bump is
         a rival: a fit that ran off beyond the probes or failed its checks is "backed" by
         touches that merely show no bump. Two `ok` peaks about equally backed make the
-        sensor `irregular`: the map does not say which one is the sensor.
+        sensor `irregular`: the map does not say which one is the sensor. Only `ok` and
+        `uncertain` sensors are checked: the others already say why they have no position.
         """
         f = self.fit
         K = self._k
@@ -826,8 +827,13 @@ class Localizer:
         cand = np.isfinite(d2) & (d2 > 0) & (d2 >= SECOND_PEAK_FRACTION * top_in) & backed
         if not cand.any():
             return
+        # An `ok` call can be silently wrong, an `uncertain` one may be the false top's
+        # loose fit; the others already say why they have no position.
+        before = np.array([e.status for e in _predictions(self)], dtype=object)[cols]
+        cand &= (before == OK) | (before == UNCERTAIN)
+        if not cand.any():
+            return
         c = cols[cand]
-        before = np.array([e.status for e in _predictions(self)], dtype=object)[c]
         kept = {name: getattr(f, name)[c].copy() for name in _SensorFit.__dataclass_fields__}
         self._seed_k[c] = k2[cand]
         self._solve(c, np.zeros(c.size, bool))
@@ -844,7 +850,7 @@ class Localizer:
         for name, v in kept.items():
             getattr(f, name)[c[restore]] = v[restore]
         self._seed_k[c[restore]] = -1
-        self._two_peaks[c[tie & (after == OK) & (before == OK)]] = True
+        self._two_peaks[c[tie & (after == OK) & (before[cand] == OK)]] = True
 
     def update(self, log: PointLog) -> Predictions:
         """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
