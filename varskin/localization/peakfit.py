@@ -95,7 +95,7 @@ REPROBE_AWAY_TOUCHES = 4
 # A second peak of a map (_second_peaks): its detrended height relative to the fitted
 # peak's, the radius (probe spacings) of its backing touch and of the start search around
 # it, and by how much one peak's effective touch count must beat the other's to win.
-SECOND_PEAK_FRACTION = 0.5
+SECOND_PEAK_FRACTION = 0.6
 SEED_RADIUS_SPACINGS = 1.5
 SECOND_PEAK_RATIO = 1.5
 # Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
@@ -836,7 +836,7 @@ class Localizer:
         c = cols[cand]
         kept = {name: getattr(f, name)[c].copy() for name in _SensorFit.__dataclass_fields__}
         self._seed_k[c] = k2[cand]
-        self._solve(c, np.zeros(c.size, bool))
+        self._solve(c, np.zeros(c.size, bool), max_iter=POLISH_MAX_ITER)
         self._solve(c, np.ones(c.size, bool), max_iter=POLISH_MAX_ITER)
         after = np.array([e.status for e in _predictions(self)], dtype=object)[c]
         radius = np.maximum(self.settings.window_widths * w[c], self.settings.window_spacings * h)
