@@ -10,7 +10,7 @@ much better than the paper's method is peakfit, and is it ever *silently* wrong,
 a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2]``
-(about 4 minutes on the 2-core VM with 2 jobs). Peakfit runs with the layout prior
+(31 s on the 2-core VM with 2 jobs). Peakfit runs with the layout prior
 (``patch=``), as ``varskin calibrate`` runs it; the paper method at ppcm 16. Prints one
 row per variant x patch x probe: located, pooled RMS of peakfit and of the paper method
 over the sensors both located, max error, 2-sigma coverage, and the silent failures.

@@ -477,7 +477,8 @@ class Localizer:
             pk = P[self._seed_k[cols][seeded]]
             d = np.hypot(P[:, 0:1] - pk[None, :, 0], P[:, 1:2] - pk[None, :, 1])
             near[:, seeded] &= d <= SEED_RADIUS_SPACINGS * h
-            near[:, ~near.any(axis=0)] = valid[:, ~near.any(axis=0)]
+            lost = ~near.any(axis=0)  # nothing valid near the seed any more: the map's top
+            near[:, lost] = valid[:, lost]
         theta0 = self._initial(P, D, near, h, need=np.zeros(cols.size, bool))
         kmax = np.argmax(np.where(near, D, -np.inf), axis=0)
         tc = tau[kmax]
