@@ -134,6 +134,29 @@ def test_two_sigma_covers_90_to_98_percent_of_ok_sensors(patch_a, patch_b):
     assert 0.90 <= float(np.mean(inside[True])) <= 0.99, float(np.mean(inside[True]))
 
 
+def test_a_known_placement_scatter_keeps_sigma_honest_on_a_sparse_finger_plan(patch_a, patch_b):
+    """On a 12 x 3 finger plan the touches' placement scatter, estimated from the data, comes
+    out far below the finger's 1 mm (the sensors' fits absorb part of each offset), and
+    sigma with it. Given the scatter (`placement_sd_mm`, a floor), 2 sigma covers >= 95%."""
+    inside = {None: [], 1.0: []}
+    for patch in (patch_a, patch_b):
+        for seed in (1, 2, 3, 4, 5, 6):
+            s = session(patch, "finger", seed, 12, 3)
+            for known in inside:
+                pred = localize(s.point_logs(), patch=patch, placement_sd_mm=known)
+                e = errors(pred, s.truth)
+                inside[known] += [
+                    err <= 2.0 * est.sigma_mm
+                    for est, err in zip(pred, e, strict=True)
+                    if est.status == OK
+                ]
+    assert len(inside[1.0]) > 200
+    assert np.mean(inside[1.0]) >= 0.95, np.mean(inside[1.0])
+    assert np.mean(inside[1.0]) > np.mean(inside[None]) + 0.05, (np.mean(inside[None]),)
+    with pytest.raises(InputError, match="placement_sd_mm must be a positive number"):
+        localize(s.point_logs(), placement_sd_mm=0.0)
+
+
 def test_sigma_grows_when_the_data_get_worse(patch_b):
     robot = localize(session(patch_b, "robot", 7).point_logs())
     finger = localize(session(patch_b, "finger", 7).point_logs())

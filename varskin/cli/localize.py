@@ -55,6 +55,16 @@ def register(subparsers) -> None:
         "more accurate with finger touches, 2.5-4.5x slower); default alternate",
     )
     p.add_argument(
+        "--placement-sd",
+        dest="placement_sd_mm",
+        type=float,
+        metavar="MM",
+        help="peakfit: how far (mm, per axis, one standard deviation) the probe really lands "
+        "from the logged point, if known: about 1 for a finger, 0.05 for a robot. Used as a "
+        "floor for the scatter estimated from the data, which sparse plans underestimate "
+        "(too-tight sigma_mm); default none (estimated only)",
+    )
+    p.add_argument(
         "--patch",
         metavar="PATCH",
         help="patch YAML or builtin name (patch_a, patch_b): its TX/RX wiring turns on peakfit's "
@@ -102,7 +112,7 @@ def method_params(args) -> dict:
     """Only the parameters the user actually set."""
     return {
         k: getattr(args, k)
-        for k in ("eta", "ppcm", "area", "solver")
+        for k in ("eta", "ppcm", "area", "solver", "placement_sd_mm")
         if getattr(args, k) is not None
     }
 

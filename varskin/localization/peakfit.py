@@ -69,6 +69,10 @@ DEFAULTS: dict = {
     # "joint": sensors and touch nuisances take joint Gauss-Newton steps (converges);
     # "alternate": block coordinate descent between them only (the default).
     "solver": "alternate",
+    # Per-axis scatter (mm) of where the probe really lands, if known (a finger ~1, a robot
+    # ~0.05): a floor for the scatter estimated from the data, which sparse plans
+    # underestimate (docs/localizer.md, Known limits). None: estimated only.
+    "placement_sd_mm": None,
 }
 
 # Statuses (one word each; see docs/localizer.md)
@@ -133,9 +137,15 @@ def check_params(params: dict) -> dict:
             or not math.isfinite(v)
         ):
             raise InputError(f"{NAME}: {key} must be a positive number, got {v!r}")
-    sp = out["spacing_mm"]
-    if sp is not None and (isinstance(sp, bool) or not isinstance(sp, (int, float)) or not sp > 0):
-        raise InputError(f"{NAME}: spacing_mm must be a positive number, got {sp!r}")
+    for key in ("spacing_mm", "placement_sd_mm"):
+        v = out[key]
+        if v is not None and (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float))
+            or not v > 0
+            or not math.isfinite(v)
+        ):
+            raise InputError(f"{NAME}: {key} must be a positive number, got {v!r}")
     if out["inverted"] not in (None, True, False):
         raise InputError(f"{NAME}: inverted must be true, false or unset, got {out['inverted']!r}")
     if out["solver"] not in SOLVER_ROUNDS:
@@ -246,7 +256,9 @@ class Localizer:
         self._v_lg = np.zeros(cap)  # posterior variances of the touch nuisances
         self._v_d = np.zeros(cap)
         self.gain_sd = 0.2  # prior scale of log gain, re-estimated from the data (EM)
-        self.place_sd_mm = 0.5  # prior scale of placement error per axis, re-estimated
+        # Prior scale of placement error per axis, re-estimated, never below a known one.
+        self._place_floor = float(self.params["placement_sd_mm"] or 0.02)
+        self.place_sd_mm = max(0.5, self._place_floor)
         self._dirty = False  # touches added since the last full polish
         self._next_full = 8  # the live view re-solves everything when the session doubles
         self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
@@ -701,7 +713,7 @@ class Localizer:
                     np.clip(np.sqrt(np.mean(self._lg[:K][use] ** 2 + v_lg[use])), 0.01, 0.5)
                 )
                 msq = np.mean(self._dxy[:K][use] ** 2, axis=1) + v_d[use]
-                self.place_sd_mm = float(np.clip(np.sqrt(np.mean(msq)), 0.02, 3.0))
+                self.place_sd_mm = float(np.clip(np.sqrt(np.mean(msq)), self._place_floor, 3.0))
             self._solve(np.arange(n), np.ones(n, bool), max_iter=POLISH_MAX_ITER)
         self._dirty = False
 
@@ -729,7 +741,7 @@ class Localizer:
         self._missed[:K] = False
         self._v_lg[:K] = 0.0
         self._v_d[:K] = 0.0
-        self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, 0.5, None
+        self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, max(0.5, self._place_floor), None
         self.fit.fitted[:] = False
         self._t_from[:] = -np.inf
         self._seed_k[:] = -1
