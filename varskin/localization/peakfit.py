@@ -757,6 +757,23 @@ class Localizer:
                 self._refit_after_settling()
         self._dirty = False
 
+    def _statuses(self) -> np.ndarray:
+        """(N,) every sensor's status as the current fits give it."""
+        return np.array([e.status for e in _predictions(self)], dtype=object)
+
+    def _refit(self, cols: np.ndarray, cold_iter: int | None = None) -> dict:
+        """Fit sensors ``cols`` afresh, then polish; return the fits they had, for _restore."""
+        f = self.fit
+        kept = {name: getattr(f, name)[cols].copy() for name in _SensorFit.__dataclass_fields__}
+        self._solve(cols, np.zeros(cols.size, bool), max_iter=cold_iter)
+        self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
+        return kept
+
+    def _restore(self, cols: np.ndarray, kept: dict, mask: np.ndarray) -> None:
+        """Put back the fits _refit replaced, for the sensors ``cols[mask]``."""
+        for name, v in kept.items():
+            getattr(self.fit, name)[cols[mask]] = v[mask]
+
     def _refit_after_settling(self) -> None:
         """Re-fit each `drifting` sensor from the touches since the probe came back to it.
 
@@ -788,14 +805,10 @@ class Localizer:
         cols = cols[np.isfinite(self._t_from[cols])]
         if cols.size == 0:
             return
-        kept = {name: getattr(f, name)[cols].copy() for name in _SensorFit.__dataclass_fields__}
-        self._solve(cols, np.zeros(cols.size, bool))
-        self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
-        status = np.array([e.status for e in _predictions(self)], dtype=object)
-        failed = status[cols] != OK
+        kept = self._refit(cols)
+        failed = self._statuses()[cols] != OK
         if failed.any():
-            for name, v in kept.items():
-                getattr(f, name)[cols[failed]] = v[failed]
+            self._restore(cols, kept, failed)
             self._t_from[cols[failed]] = -np.inf
 
     def _second_peaks(self) -> None:
@@ -842,16 +855,14 @@ class Localizer:
             return
         # An `ok` call can be silently wrong, an `uncertain` one may be the false top's
         # loose fit; the others already say why they have no position.
-        before = np.array([e.status for e in _predictions(self)], dtype=object)[cols]
+        before = self._statuses()[cols]
         cand &= (before == OK) | (before == UNCERTAIN)
         if not cand.any():
             return
         c = cols[cand]
-        kept = {name: getattr(f, name)[c].copy() for name in _SensorFit.__dataclass_fields__}
         self._seed_k[c] = k2[cand]
-        self._solve(c, np.zeros(c.size, bool), max_iter=POLISH_MAX_ITER)
-        self._solve(c, np.ones(c.size, bool), max_iter=POLISH_MAX_ITER)
-        after = np.array([e.status for e in _predictions(self)], dtype=object)[c]
+        kept = self._refit(c, cold_iter=POLISH_MAX_ITER)
+        after = self._statuses()[c]
         radius = np.maximum(self.settings.window_widths * w[c], self.settings.window_spacings * h)
         # A fit from the second peak that came back to the first is no second opinion.
         apart = np.hypot(*(f.theta[c, :2] - kept["theta"][:, :2]).T) > radius
@@ -860,8 +871,7 @@ class Localizer:
         new_wins = rival & (n_new >= SECOND_PEAK_RATIO * n_old)
         tie = rival & ~new_wins & (n_old < SECOND_PEAK_RATIO * n_new)
         restore = ~new_wins
-        for name, v in kept.items():
-            getattr(f, name)[c[restore]] = v[restore]
+        self._restore(c, kept, restore)
         self._seed_k[c[restore]] = -1
         self._two_peaks[c[tie & (after == OK) & (before[cand] == OK)]] = True
 
