@@ -29,6 +29,7 @@ import numpy as np
 
 N_PARAMS = 10  # sx, sy, log wx, log wy, a, b0, b1, b2, ridge along RX (y = sy), along TX
 SX, SY, LW, LWY, AMP, B0, B1, B2, CRX, CTX = range(N_PARAMS)
+WIDTHS = slice(LW, LWY + 1)  # both log widths, as a view
 MIN_WIDTH_SPACINGS = 0.3  # a footprint much narrower than the probe spacing is unresolvable
 MAX_WIDTH_SPACINGS = 15.0
 RIDGE_FRACTION = 0.35  # a wire ridge's width across the wire, in footprint half widths
@@ -64,7 +65,8 @@ def _per_touch(G: np.ndarray) -> np.ndarray:
 
 
 def lorentz(P: np.ndarray, theta: np.ndarray):
-    """Shape g, the x and y parts of the squared normalized distance, inverse widths^2.
+    """Shape g, the x and y parts of the squared normalized distance, inverse widths^2,
+    and the signed distances from the peak (which the Jacobian and the ridges reuse).
 
     Shapes broadcast: theta (S,P) against probes (K,2) gives (K,S); theta (R,M,P) (sensors
     gathered per touch) against probes (R,2) gives (R,M).
@@ -76,7 +78,7 @@ def lorentz(P: np.ndarray, theta: np.ndarray):
     dy = Y - theta[..., SY]
     rx = dx * dx * iwx
     ry = dy * dy * iwy
-    return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy)
+    return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy), (dx, dy)
 
 
 def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
@@ -85,30 +87,34 @@ def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) 
     radius = np.maximum(s.window_widths * w, min_radius)
     X, Y = _xy(P)
     d = np.hypot(X - theta[..., SX], Y - theta[..., SY])
-    u = np.clip((d / radius - 1.0) * 2.0, 0.0, 1.0)
+    # minimum/maximum, not np.clip: the same values at a fraction of the call overhead.
+    u = np.minimum(np.maximum((d / radius - 1.0) * 2.0, 0.0), 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
 
 
-def ridges(P, theta, rho):
+def ridges(P, theta, rho, d=None):
     """Coupling along the sensor's own wires: narrow ridges at y = sy (RX) and x = sx (TX).
 
-    ``rho`` (S,) is the ridge width; returns the two profiles and their signed distances.
+    ``rho`` (S,) is the ridge width; ``d`` the signed distances (dx, dy) if already known;
+    returns the two profiles and their signed distances.
     """
-    X, Y = _xy(P)
-    dy = Y - theta[..., SY]
-    dx = X - theta[..., SX]
+    if d is None:
+        X, Y = _xy(P)
+        dx, dy = X - theta[..., SX], Y - theta[..., SY]
+    else:
+        dx, dy = d
     r2 = 1.0 / (rho * rho)
     return np.exp(-0.5 * dy * dy * r2), np.exp(-0.5 * dx * dx * r2), dx, dy, r2
 
 
 def model(P, tau, theta, G=None, rho=None):
     """Model values (K,S); ``G`` (K,) is each touch's relative pressing gain (default 1)."""
-    g, _, _ = lorentz(P, theta)
+    g, _, _, dxy = lorentz(P, theta)
     if G is not None:
         g = g * _per_touch(G)
     m = floor(tau, theta) + theta[..., AMP] * g
     if rho is not None:
-        ry, rx, _, _, _ = ridges(P, theta, rho)
+        ry, rx, _, _, _ = ridges(P, theta, rho, dxy)
         gg = 1.0 if G is None else _per_touch(G)
         m = m + gg * (theta[..., CRX] * ry + theta[..., CTX] * rx)
     return m
@@ -125,16 +131,15 @@ def floor(tau, theta):
 
 def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
     """Model (K,S) and its Jacobian (K,S,N_PARAMS)."""
-    g, (rx, ry), (iwx, iwy) = lorentz(P, theta)
+    g, (rx, ry), (iwx, iwy), dxy = lorentz(P, theta)
     a = theta[..., AMP]
     k2 = 2.0 * a * g * g
     if G is not None:
         k2 = k2 * _per_touch(G)
         g = g * _per_touch(G)
-    X, Y = _xy(P)
     J = np.empty(g.shape + (N_PARAMS,))
-    J[..., SX] = k2 * (X - theta[..., SX]) * iwx
-    J[..., SY] = k2 * (Y - theta[..., SY]) * iwy
+    J[..., SX] = k2 * dxy[0] * iwx
+    J[..., SY] = k2 * dxy[1] * iwy
     J[..., LW] = k2 * rx
     J[..., LWY] = k2 * ry
     J[..., AMP] = g
@@ -145,7 +150,7 @@ def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
     J[..., CRX] = 0.0
     J[..., CTX] = 0.0
     if rho is not None:
-        ry, rx, dx, dy, r2 = ridges(P, theta, rho)
+        ry, rx, dx, dy, r2 = ridges(P, theta, rho, dxy)
         gg = 1.0 if G is None else _per_touch(G)
         cy, cx = theta[..., CRX], theta[..., CTX]
         J[..., CRX] = gg * ry
@@ -253,11 +258,8 @@ def fit(
     S = U.shape[1]
     spacing = min_radius / s.window_spacings
     theta = theta0.astype(float).copy()
-    theta[:, [LW, LWY]] = np.clip(
-        theta[:, [LW, LWY]],
-        np.log(MIN_WIDTH_SPACINGS * spacing),
-        np.log(MAX_WIDTH_SPACINGS * spacing),
-    )
+    lw_lo, lw_hi = np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+    theta[:, WIDTHS] = np.clip(theta[:, WIDTHS], lw_lo, lw_hi)
     lw_prior = 0.5 * (theta0[:, LW] + theta0[:, LWY])
     K = U.shape[0]
     G_all = np.ones(K) if gain is None else gain
@@ -286,6 +288,7 @@ def fit(
     active = np.ones(S, bool)
     converged = np.zeros(S, bool)
     last_step = np.full(S, np.inf)
+    diag = np.arange(N_PARAMS)
     rho = ridge_width
     Q, mu = sensor_priors(S, s, width_mean, lw_prior)
 
@@ -318,10 +321,14 @@ def fit(
         idx = np.flatnonzero(active)
         if idx.size == 0:
             break
+        # While every sensor is active (a live update's few iterations), slices are views.
+        sub_all = slice(None) if idx.size == S else idx
         th = theta[idx]
-        m, J = jacobian(P[:, idx], tau[:, idx], th, gain[:, idx], None if rho is None else rho[idx])
-        res = Uz[:, idx] - m
-        win = fit_window(th, idx)
+        m, J = jacobian(
+            P[:, sub_all], tau[:, sub_all], th, gain[:, sub_all], None if rho is None else rho[idx]
+        )
+        res = Uz[:, sub_all] - m
+        win = fit_window(th, sub_all)
         wts = robust_weights(win, res, scale[idx])
         # M-estimate of the residual scale over the window, floored by the measured noise.
         wsum = np.maximum(win.sum(axis=0), 1e-12)
@@ -346,10 +353,8 @@ def fit(
             todo = ~accepted
             if not todo.any():
                 break
-            Hd = H[todo] + np.eye(N_PARAMS)[None] * (
-                lam_i[todo, None, None]
-                * (np.diagonal(H[todo], axis1=1, axis2=2)[:, None, :] + 1e-9)
-            )
+            Hd = H[todo]
+            Hd[:, diag, diag] += lam_i[todo, None] * (Hd[:, diag, diag] + 1e-9)
             try:
                 d = np.linalg.solve(Hd, g[todo][..., None])[..., 0]
             except np.linalg.LinAlgError:
@@ -359,23 +364,23 @@ def fit(
                         for h, gg in zip(Hd, g[todo], strict=False)
                     ]
                 )
-            d[:, [LW, LWY]] = np.clip(d[:, [LW, LWY]], -0.5, 0.5)
-            d[:, [SX, SY]] = np.clip(d[:, [SX, SY]], -0.5 * min_radius, 0.5 * min_radius)
+            d[:, WIDTHS] = np.minimum(np.maximum(d[:, WIDTHS], -0.5), 0.5)
+            d[:, :2] = np.minimum(np.maximum(d[:, :2], -0.5 * min_radius), 0.5 * min_radius)
             cand = th[todo] + d
             cand[:, AMP] = np.maximum(cand[:, AMP], 1e-6)
-            cand[:, [LW, LWY]] = np.clip(
-                cand[:, [LW, LWY]],
-                np.log(MIN_WIDTH_SPACINGS * spacing),
-                np.log(MAX_WIDTH_SPACINGS * spacing),
+            cand[:, WIDTHS] = np.minimum(np.maximum(cand[:, WIDTHS], lw_lo), lw_hi)
+            all_todo = todo.all()
+            cols = sub_all if all_todo else idx[todo]
+            ok = cost(cand, sc[todo], cols, win if all_todo else win[:, todo]) <= c0[todo] * (
+                1 + 1e-12
             )
-            ok = cost(cand, sc[todo], idx[todo], win[:, todo]) <= c0[todo] * (1 + 1e-12)
             ok &= np.isfinite(cand).all(axis=1)
             sub = np.flatnonzero(todo)
             step[sub[ok]] = cand[ok] - th[sub[ok]]
             accepted[sub[ok]] = True
             lam_i[sub[ok]] *= 0.3
             lam_i[sub[~ok]] *= 8.0
-        lam[idx] = np.clip(lam_i, 1e-9, 1e9)
+        lam[idx] = np.minimum(np.maximum(lam_i, 1e-9), 1e9)
         theta[idx] = th + step
         moved = np.hypot(step[:, SX], step[:, SY])
         last_step[idx] = np.where(accepted, moved, last_step[idx])

@@ -390,11 +390,12 @@ class Localizer:
             if (new @ eq[:, :2].T + eq[:, 2] <= 1e-9).all():
                 self._hull = (K, eq, corners)
                 return eq
-            pts = np.vstack([corners, new])
-        else:
-            pts = np.unique(self._P[:K], axis=0)
+            corners, eq = _small_hull(np.vstack([corners, new]))
+            self._hull = (K, eq, corners)
+            return eq
         from scipy.spatial import ConvexHull
 
+        pts = np.unique(self._P[:K], axis=0)
         hull = ConvexHull(pts)
         self._hull = (K, hull.equations, pts[hull.vertices])
         return hull.equations
@@ -465,20 +466,39 @@ class Localizer:
 
     # --- solving -----------------------------------------------------------------------
 
-    def _solve(self, cols: np.ndarray, warm: np.ndarray, max_iter: int | None = None) -> None:
-        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit."""
+    def _map_inputs(self, cols: np.ndarray) -> tuple:
+        """What a fit of sensors ``cols`` takes from their maps: (clipped, U, D, valid,
+        floor, amp, noise), every array with one column (or entry) per sensor."""
         K = self._k
-        if cols.size == 0 or K == 0:
-            return
-        P = self._P[:K] + self._dxy[:K]
-        tau = self._tau()
         clipped = self._clipped(cols)
         U, D, valid, floor, amp = self._maps(cols, clipped)
-        f = self.fit
-        nz = self._noise[:K][:, cols]
         with np.errstate(all="ignore"):
-            noise = _nanmedian_cols(nz) / amp
+            noise = _nanmedian_cols(self._noise[:K][:, cols]) / amp
         noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
+        return clipped, U, D, valid, floor, amp, noise
+
+    def _solve(
+        self,
+        cols: np.ndarray,
+        warm: np.ndarray,
+        max_iter: int | None = None,
+        inputs: tuple | None = None,
+    ) -> tuple | None:
+        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit.
+
+        ``inputs``: ``_map_inputs(cols)`` if the caller already has them (the second pass of
+        a live update fits a subset of the first's sensors on the same maps). Returns the
+        inputs used.
+        """
+        K = self._k
+        if cols.size == 0 or K == 0:
+            return None
+        P = self._P[:K] + self._dxy[:K]
+        tau = self._tau()
+        if inputs is None:
+            inputs = self._map_inputs(cols)
+        clipped, U, D, valid, floor, amp, noise = inputs
+        f = self.fit
         h = self.spacing()
         min_radius = self.settings.window_spacings * h
         # The start: the top of the detrended map D, or near the touch a second-peak check
@@ -545,6 +565,7 @@ class Localizer:
         f.start[cols] = start
         f.n_clipped[cols] = clipped.sum(axis=0)
         f.tc[cols] = tc
+        return inputs
 
     def _initial(self, P, U, valid, h, need: np.ndarray | None = None) -> np.ndarray:
         """Cold start: centre of the map's top, width by a small search, floor and height.
@@ -582,7 +603,7 @@ class Localizer:
         for wc in (0.6 * h, 1.0 * h, 1.6 * h, 2.5 * h):
             th = theta.copy()
             th[:, pm.LW] = th[:, pm.LWY] = np.log(wc)
-            g, _, _ = pm.lorentz(P, th)
+            g = pm.lorentz(P, th)[0]
             win = pm.window(P, th, self.settings.window_spacings * h, self.settings) * vf
             # Weighted linear least squares for height and floor at this width.
             s0, s1, s2 = win.sum(0), (win * g).sum(0), (win * g * g).sum(0)
@@ -950,8 +971,9 @@ class Localizer:
         # One pass over both: a restarted sensor begins at its map's top (a good start) and
         # the following updates refine it, so a few iterations suffice here too.
         todo = np.flatnonzero(near | new_top)
+        first = None
         if todo.size:
-            self._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
+            first = self._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
         # The new touch's own gain and placement come from the models it has just updated
         # (judged by models that had not seen it, a first touch near a sensor would be
         # "explained" by a wrong offset), then those sensors take one more short pass.
@@ -966,9 +988,16 @@ class Localizer:
         m1 = pm.model(
             self._P[k : k + 1] + self._dxy[k], zero, th, np.exp(self._lg[k : k + 1]), rho
         )[0]
-        redo = cand[np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)]
+        pick = np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)
+        redo = cand[pick]
         if redo.size:
-            self._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS)
+            # The same maps as the first pass, unless the touch was just judged missed
+            # (which changes what is valid); per-sensor columns, so a subset is a slice.
+            inputs = None
+            if first is not None and not self._missed[k]:
+                sub = np.flatnonzero(pick)
+                inputs = tuple(a[sub] if a.ndim == 1 else a[:, sub] for a in first)
+            self._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS, inputs=inputs)
         return self._current()
 
     def _current(self) -> Predictions:
@@ -1047,6 +1076,32 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     j = np.clip(np.searchsorted(centres, k) - 1, 0, len(centres) - 2)
     t = np.clip((k - centres[j]) / (centres[j + 1] - centres[j]), 0.0, 1.0)
     return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
+
+
+def _small_hull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corners and edges (n.x + c <= 0 inside, n unit and outward) of the convex hull of a
+    few points that are not all on one line.
+
+    A live update's hull is its old corners plus the new touch: a handful of points, for
+    which a monotone chain in plain Python costs a tenth of a call to qhull.
+    """
+    p = sorted(set(map(tuple, pts.tolist())))
+
+    def chain(seq):
+        out: list = []
+        for q in seq:
+            while len(out) >= 2:
+                (ax, ay), (bx, by) = out[-2], out[-1]
+                if (bx - ax) * (q[1] - ay) - (by - ay) * (q[0] - ax) > 0:
+                    break
+                out.pop()  # not a left turn: b is inside or on the edge a-q
+            out.append(q)
+        return out[:-1]
+
+    corners = np.array(chain(p) + chain(p[::-1]))  # counter-clockwise
+    edge = np.roll(corners, -1, axis=0) - corners
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(edge[:, 0], edge[:, 1])[:, None]
+    return corners, np.column_stack([normal, -(normal * corners).sum(axis=1)])
 
 
 def _hull_distance(eq: np.ndarray | None, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -1168,8 +1223,15 @@ def _predictions(loc: Localizer) -> Predictions:
         touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
         inside = _window_members(loc, xy, w, h)
         use = ok | loose  # a loose sensor informs its wire's line only with its own weight
-        shared_x = touch_part * _mean_overlap(inside, tx, use)
-        shared_y = touch_part * _mean_overlap(inside, rx, use)
+        # Both wire families in one call (rx ids after tx ids): a live update runs this.
+        offset = int(tx.max(initial=-1)) + 1
+        overlap = _mean_overlap(
+            np.hstack([inside, inside]),
+            np.concatenate([tx, np.where(rx >= 0, rx + offset, -1)]),
+            np.concatenate([use, use]),
+        )
+        shared_x = touch_part * overlap[: len(use)]
+        shared_y = touch_part * overlap[len(use) :]
         xy, vx, vy = shrink_to_layout(
             xy, sd**2, tx, rx, use, floor, (shared_x, shared_y), loc.design
         )
@@ -1218,7 +1280,7 @@ def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) ->
     if not member.any():
         return out
     # Every wire at once, padded to (G, M) like the layout prior: a live update calls
-    # this twice per touch.
+    # this every touch.
     M = int(member.sum(axis=1).max())
     order = np.argsort(~member, axis=1, kind="stable")[:, :M]
     mask = np.take_along_axis(member, order, axis=1)
