@@ -9,9 +9,9 @@ much better than the paper's method is peakfit, and is it ever *silently* wrong,
 ``ok`` with an error above both 2 mm and 3 sigma_mm. A flagged status is an honest answer;
 a confident wrong position is not.
 
-Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2]``
-(31 s on the 2-core VM with 2 jobs). Peakfit runs with the layout prior
-(``patch=``), as ``varskin calibrate`` runs it; the paper method at ppcm 16. Prints one
+Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
+[--solver alternate|joint]`` (31 s on the 2-core VM with 2 jobs). Peakfit runs with the
+layout prior (``patch=``), as ``varskin calibrate`` runs it; the paper method at ppcm 16. Prints one
 row per variant x patch x probe: located, pooled RMS of peakfit and of the paper method
 over the sensors both located, max error, 2-sigma coverage, and the silent failures.
 """
@@ -74,12 +74,12 @@ def _rms(e: np.ndarray) -> float:
 
 
 def one_scene(job):
-    variant, pname, probe, seed = job
+    variant, pname, probe, seed, solver = job
     params, grid = VARIANTS[variant]
     patch = builtin_patch(pname)
     s = simulate_session(patch, _points(patch, grid, seed), probe, seed, params)
     logs = s.point_logs()
-    pf = localize(logs, patch=patch)
+    pf = localize(logs, patch=patch, solver=solver)
     pp = localize(logs, method="paper", ppcm=16)
     ef = np.linalg.norm(pf.xy() - s.truth, axis=1)
     ep = np.linalg.norm(pp.xy() - s.truth, axis=1)
@@ -108,11 +108,17 @@ def main() -> None:
     ap.add_argument("--seeds", default="500:510", help="first:end (end excluded), default 500:510")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--only", default="", help="comma-separated variant names (default all)")
+    ap.add_argument(
+        "--solver",
+        default="alternate",
+        choices=("alternate", "joint"),
+        help="peakfit's batch solver (default alternate, the default of `localize`)",
+    )
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
     names = [v.strip() for v in args.only.split(",") if v.strip()] or list(VARIANTS)
     jobs = [
-        (v, pn, pr, seed)
+        (v, pn, pr, seed, args.solver)
         for v in names
         for pn in ("patch_a", "patch_b")
         for pr in ("robot", "finger")
