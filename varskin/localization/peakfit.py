@@ -1083,7 +1083,8 @@ def _small_hull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     few points that are not all on one line.
 
     A live update's hull is its old corners plus the new touch: a handful of points, for
-    which a monotone chain in plain Python costs a tenth of a call to qhull.
+    which a monotone chain in plain Python is cheaper than setting up qhull. The caller
+    has ruled out collinear probes.
     """
     p = sorted(set(map(tuple, pts.tolist())))
 
