@@ -19,9 +19,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _board_simproc import SimProcess  # noqa: E402
+from _board_simproc import SimProcess
 
-from varskin.board.recorder import Recorder  # noqa: E402
+from varskin.board.recorder import Recorder
 
 
 def process_cpu() -> float:

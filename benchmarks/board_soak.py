@@ -16,11 +16,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _board_simproc import SimProcess  # noqa: E402
+from _board_simproc import SimProcess
 
-from varskin.board.recorder import Recorder  # noqa: E402
-from varskin.board.simboard import STAMP_CELL  # noqa: E402
-from varskin.progress import Progress  # noqa: E402
+from varskin.board.recorder import Recorder
+from varskin.board.simboard import STAMP_CELL
+from varskin.progress import Progress
 
 
 def main() -> None:

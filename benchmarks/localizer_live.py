@@ -24,10 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from varskin.localization import peakfit  # noqa: E402
-from varskin.patch import builtin_patch  # noqa: E402
-from varskin.predictions import OK  # noqa: E402
-from varskin.simulate import simulate_session, uniform_grid  # noqa: E402
+from varskin.localization import peakfit
+from varskin.patch import builtin_patch
+from varskin.predictions import OK
+from varskin.simulate import simulate_session, uniform_grid
 
 
 def seed_range(text: str) -> range:
