@@ -52,7 +52,9 @@ def register(subparsers) -> None:
         choices=["alternate", "joint"],
         help="peakfit: how the batch solve couples the sensors' fits with the touches' gain "
         "and placement: alternate between them, or take joint Gauss-Newton steps (converges; "
-        "more accurate with finger touches, 2.5-4.5x slower); default alternate",
+        "more accurate with finger touches, and the one to use for sparse or scattered finger "
+        "touches, whose error bars the default makes too tight; 2.5-4.5x slower); "
+        "default alternate",
     )
     p.add_argument(
         "--placement-sd",
