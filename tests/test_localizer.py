@@ -440,3 +440,54 @@ def test_layout_prior_of_both_axes_at_once_equals_one_axis_at_a_time():
     np.testing.assert_allclose(got_vx, vx, rtol=1e-12)
     np.testing.assert_allclose(got_vy, vy, rtol=1e-12)
     assert np.abs(got_xy - xy)[usable].max() > 0.01  # the prior did move them
+
+
+def _joint_system(n_sensors: int, n_touches: int, per_touch: int, seed: int):
+    """A random linearized joint problem with the localizer's structure: each observation
+    joins one sensor's 10 parameters and one touch's 3 nuisances."""
+    from varskin.localization import _joint
+
+    NP = _joint.NP
+    rng = np.random.default_rng(seed)
+    ke = np.repeat(np.arange(n_touches), per_touch)
+    se = np.concatenate([rng.choice(n_sensors, per_touch, replace=False) for _ in range(n_touches)])
+    Js = rng.normal(size=(ke.size, 4, NP))  # 4 observations per touch-sensor pair
+    Jt = rng.normal(size=(ke.size, 4, 3))
+    Hss = np.tile(np.eye(NP), (n_sensors, 1, 1))
+    np.add.at(Hss, se, Js.transpose(0, 2, 1) @ Js)
+    Htt = np.tile(np.eye(3), (n_touches, 1, 1))
+    np.add.at(Htt, ke, Jt.transpose(0, 2, 1) @ Jt)
+    B = Js.transpose(0, 2, 1) @ Jt  # (E, NP, 3)
+    import scipy.sparse
+
+    Bs = scipy.sparse.csr_matrix(
+        (
+            B.transpose(0, 2, 1).ravel(),
+            (
+                np.repeat(ke[:, None] * 3 + np.arange(3)[None, :], NP, axis=1).ravel(),
+                np.tile(se[:, None] * NP + np.arange(NP)[None, :], (1, 3)).ravel(),
+            ),
+        ),
+        shape=(3 * n_touches, n_sensors * NP),
+    )
+    iT = np.linalg.inv(Htt)
+    dense = -(Bs.T @ scipy.sparse.block_diag(list(iT)) @ Bs).toarray()
+    for i in range(n_sensors):
+        dense[i * NP : (i + 1) * NP, i * NP : (i + 1) * NP] += Hss[i]
+    rhs = rng.normal(size=n_sensors * NP)
+    return Hss, B, ke, se, Bs, iT, dense, rhs
+
+
+@pytest.mark.parametrize("cg_iterations", [500, 1])
+def test_a_board_sized_joint_step_solves_its_reduced_system(cg_iterations, monkeypatch):
+    """Above DENSE_UP_TO unknowns the joint step solves the reduced system by preconditioned
+    conjugate gradients without forming it, falling back to SuperLU when they stall; both
+    must give the dense solution."""
+    from varskin.localization import _joint
+
+    monkeypatch.setattr(_joint, "CG_MAX_ITER", cg_iterations)
+    Hss, B, ke, se, Bs, iT, dense, rhs = _joint_system(80, 300, 5, seed=3)
+    assert Hss.shape[0] * _joint.NP > _joint.DENSE_UP_TO
+    got = _joint._solve_reduced(Hss, Bs, iT, rhs, _joint._own_blocks(Hss, B, ke, se, iT))
+    want = np.linalg.solve(dense, rhs)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-7 * np.abs(want).max())

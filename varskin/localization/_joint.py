@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from varskin.localization.peakfit import Localizer
 
 NP = pm.N_PARAMS
-DENSE_UP_TO = 600  # unknowns; a bigger reduced system is solved as a sparse matrix
+DENSE_UP_TO = 600  # unknowns; a bigger reduced system is solved by conjugate gradients
+CG_MAX_ITER = 500  # ... and factorized if they have not converged by then
 
 
 def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
@@ -129,8 +130,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
             A[idx + np.arange(NP)[None, :, None], idx + np.arange(NP)[None, None, :]] += Hss
             ds = scipy.linalg.solve(A, rhs, assume_a="sym")
         else:
-            A = _block_diagonal(Hss) - Bs.T @ _block_diagonal(iT) @ Bs
-            ds = scipy.sparse.linalg.splu(A.tocsc()).solve(rhs)
+            ds = _solve_reduced(Hss, Bs, iT, rhs, _own_blocks(Hss, B, ke, se, iT))
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         return False
     if not np.isfinite(ds).all():
@@ -159,6 +159,50 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
             loc._dxy[:K] = d1
             return True
     return False
+
+
+def _own_blocks(
+    Hss: np.ndarray, B: np.ndarray, ke: np.ndarray, se: np.ndarray, iT: np.ndarray
+) -> np.ndarray:
+    """(S, NP, NP) each sensor's own block of the reduced matrix: its Hessian less what the
+    touches it sees take, B_e Htt^-1 B_e^T over its touch-sensor pairs e (``B`` (E, NP, 3),
+    pair e joins touch ``ke[e]`` and sensor ``se[e]``)."""
+    own = Hss.copy()
+    np.add.at(own, se, -np.einsum("epa,eab,eqb->epq", B, iT[ke], B, optimize=True))
+    return own
+
+
+def _solve_reduced(
+    Hss: np.ndarray, Bs, iT: np.ndarray, rhs: np.ndarray, own: np.ndarray
+) -> np.ndarray:
+    """Solve (Hss - B^T Htt^-1 B) x = rhs for a board-sized system without forming it.
+
+    The reduced matrix is symmetric positive definite (a Schur complement of the damped
+    joint Hessian), and each sensor's own block ``own`` (S, NP, NP) dominates it, so
+    conjugate gradients preconditioned by those blocks converge in a few dozen products,
+    each two sparse matrix-vector products. Forming the matrix and factorizing it
+    (SuperLU) cost several times more on the full board; that stays as the fallback.
+    """
+    S = Hss.shape[0]
+    K = iT.shape[0]
+    n = S * NP
+
+    def matvec(v: np.ndarray) -> np.ndarray:
+        t = (iT @ (Bs @ v).reshape(K, 3, 1)).ravel()
+        return (Hss @ v.reshape(S, NP, 1)).ravel() - Bs.T @ t
+
+    pinv = np.linalg.inv(own)
+
+    def precond(v: np.ndarray) -> np.ndarray:
+        return (pinv @ v.reshape(S, NP, 1)).ravel()
+
+    op = scipy.sparse.linalg.LinearOperator((n, n), matvec=matvec, dtype=float)
+    M = scipy.sparse.linalg.LinearOperator((n, n), matvec=precond, dtype=float)
+    x, info = scipy.sparse.linalg.cg(op, rhs, M=M, rtol=1e-10, maxiter=CG_MAX_ITER)
+    if info == 0:
+        return x
+    A = _block_diagonal(Hss) - Bs.T @ _block_diagonal(iT) @ Bs
+    return scipy.sparse.linalg.splu(A.tocsc()).solve(rhs)
 
 
 def _block_diagonal(blocks: np.ndarray) -> scipy.sparse.csr_matrix:
