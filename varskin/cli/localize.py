@@ -53,7 +53,7 @@ def register(subparsers) -> None:
         help="peakfit: how the batch solve couples the sensors' fits with the touches' gain "
         "and placement: alternate between them, or take joint Gauss-Newton steps (converges; "
         "more accurate with finger touches, and the one to use for sparse or scattered finger "
-        "touches, whose error bars the default makes too tight; 2.3-2.9x slower); "
+        "touches, whose error bars the default makes too tight; 2.3-3.1x slower); "
         "default alternate",
     )
     p.add_argument(
