@@ -445,6 +445,8 @@ def test_layout_prior_of_both_axes_at_once_equals_one_axis_at_a_time():
 def _joint_system(n_sensors: int, n_touches: int, per_touch: int, seed: int):
     """A random linearized joint problem with the localizer's structure: each observation
     joins one sensor's 10 parameters and one touch's 3 nuisances."""
+    import scipy.sparse
+
     from varskin.localization import _joint
 
     NP = _joint.NP
@@ -458,18 +460,7 @@ def _joint_system(n_sensors: int, n_touches: int, per_touch: int, seed: int):
     Htt = np.tile(np.eye(3), (n_touches, 1, 1))
     np.add.at(Htt, ke, Jt.transpose(0, 2, 1) @ Jt)
     B = Js.transpose(0, 2, 1) @ Jt  # (E, NP, 3)
-    import scipy.sparse
-
-    Bs = scipy.sparse.csr_matrix(
-        (
-            B.transpose(0, 2, 1).ravel(),
-            (
-                np.repeat(ke[:, None] * 3 + np.arange(3)[None, :], NP, axis=1).ravel(),
-                np.tile(se[:, None] * NP + np.arange(NP)[None, :], (1, 3)).ravel(),
-            ),
-        ),
-        shape=(3 * n_touches, n_sensors * NP),
-    )
+    Bs = _joint.cross_terms(B, ke, se, n_touches, n_sensors)
     iT = np.linalg.inv(Htt)
     dense = -(Bs.T @ scipy.sparse.block_diag(list(iT)) @ Bs).toarray()
     for i in range(n_sensors):

@@ -111,16 +111,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     # cross terms; a sensor couples only to the sensors it shares touches with.
     n = S * NP
     iT = np.linalg.inv(Htt)
-    Bs = scipy.sparse.csr_matrix(
-        (
-            B.transpose(0, 2, 1).ravel(),
-            (
-                np.repeat(ke[:, None] * 3 + np.arange(3)[None, :], NP, axis=1).ravel(),
-                np.tile(se[:, None] * NP + np.arange(NP)[None, :], (1, 3)).ravel(),
-            ),
-        ),
-        shape=(3 * K, n),
-    )
+    Bs = cross_terms(B, ke, se, K, S)
     rhs = gs.ravel() - Bs.T @ (iT @ gt[:, :, None]).ravel()
     try:
         if n <= DENSE_UP_TO:
@@ -159,6 +150,23 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
             loc._dxy[:K] = d1
             return True
     return False
+
+
+def cross_terms(
+    B: np.ndarray, ke: np.ndarray, se: np.ndarray, K: int, S: int
+) -> scipy.sparse.csr_matrix:
+    """(3K, S*NP) sparse sensor-touch cross terms from their (E, NP, 3) blocks ``B``; block
+    e joins touch ``ke[e]`` and sensor ``se[e]`` (each pair at most once)."""
+    return scipy.sparse.csr_matrix(
+        (
+            B.transpose(0, 2, 1).ravel(),
+            (
+                np.repeat(ke[:, None] * 3 + np.arange(3)[None, :], NP, axis=1).ravel(),
+                np.tile(se[:, None] * NP + np.arange(NP)[None, :], (1, 3)).ravel(),
+            ),
+        ),
+        shape=(3 * K, S * NP),
+    )
 
 
 def _own_blocks(

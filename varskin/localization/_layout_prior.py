@@ -136,8 +136,7 @@ def shrink_to_layout(
     instead of one per axis: a live update runs this every touch.
     """
     n = len(var)
-    offset = max(int(tx.max(initial=-1)), -1) + 1
-    groups = np.concatenate([tx, np.where(rx >= 0, rx + offset, -1)])
+    groups = both_axes(tx, rx)
     out, out_var = shrink_to_wires(
         np.concatenate([xy[:, 0], xy[:, 1]]),
         np.concatenate([var, var]),
@@ -150,6 +149,13 @@ def shrink_to_layout(
         np.repeat([0, 1], n),
     )
     return np.column_stack([out[:n], out[n:]]), out_var[:n], out_var[n:]
+
+
+def both_axes(tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
+    """(2N,) wire ids of every sensor's x (its TX wire) then its y (its RX wire), the RX ids
+    numbered after the TX ones (-1: none): both axes as one set of groups."""
+    offset = max(int(tx.max(initial=-1)), -1) + 1
+    return np.concatenate([tx, np.where(rx >= 0, rx + offset, -1)])
 
 
 def _design_prior(coord, var, in_group, member, design, family, floor_mm: float):

@@ -21,7 +21,7 @@ import numpy as np
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
 from varskin.localization._joint import joint_step
-from varskin.localization._layout_prior import shrink_to_layout
+from varskin.localization._layout_prior import both_axes, shrink_to_layout
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
@@ -1224,12 +1224,9 @@ def _predictions(loc: Localizer) -> Predictions:
         touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
         inside = _window_members(loc, xy, w, h)
         use = ok | loose  # a loose sensor informs its wire's line only with its own weight
-        # Both wire families in one call (rx ids after tx ids): a live update runs this.
-        offset = int(tx.max(initial=-1)) + 1
+        # Both wire families in one call: a live update runs this.
         overlap = _mean_overlap(
-            np.hstack([inside, inside]),
-            np.concatenate([tx, np.where(rx >= 0, rx + offset, -1)]),
-            np.concatenate([use, use]),
+            np.hstack([inside, inside]), both_axes(tx, rx), np.concatenate([use, use])
         )
         shared_x = touch_part * overlap[: len(use)]
         shared_y = touch_part * overlap[len(use) :]
