@@ -300,3 +300,29 @@ def test_spaces_around_the_touch_cell_are_read_like_any_other_cell(tmp_path):
     logs = read_point_logs(write(tmp_path, text))
     np.testing.assert_allclose(logs.rest, [2.0, 3.0])
     assert logs.touch.tolist() == [1, 2, 3]
+
+
+@pytest.mark.parametrize("block_rows", [3, 4096])
+def test_averaging_in_blocks_equals_each_touchs_own_mean_and_sd(monkeypatch, block_rows):
+    """Frames are averaged a block of rows at a time (to bound memory); a touch whose frames
+    straddle blocks or come back later must get the same mean, sd and counts as its frames
+    taken alone."""
+    from varskin import pointlogs
+
+    monkeypatch.setattr(pointlogs, "AVERAGE_BLOCK_ROWS", block_rows)
+    rng = np.random.default_rng(4)
+    touch = np.array([5, 5, 2, 5, 2, 9, 9, 9, 2, 5, 9])
+    samples = 10_000.0 + rng.normal(0, 3, (touch.size, 3))
+    samples[1, 0] = np.nan
+    samples[7, 2] = np.inf
+    xy = np.repeat(touch[:, None].astype(float), 2, axis=1)
+    logs = pointlogs.average_samples(("A", "B", "C"), touch, xy, samples)
+    assert list(logs.touch) == [2, 5, 9]
+    assert any("2 non-finite" in w for w in logs.warnings), logs.warnings
+    for row, t in enumerate(logs.touch):
+        for col in range(3):
+            v = samples[touch == t, col]
+            v = v[np.isfinite(v)]
+            assert logs.values[row, col] == pytest.approx(v.mean(), abs=1e-9)
+            assert logs.sample_sd[row, col] == pytest.approx(v.std(ddof=1), abs=1e-9)
+    assert list(logs.n_samples) == [3, 3, 3]  # touch 5: 4 frames, one NaN; touch 9: one inf

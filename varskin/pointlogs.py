@@ -118,6 +118,10 @@ class PointLogs:
         )
 
 
+# Frame rows averaged per pass of ``average_samples`` (bounds its temporaries to ~10 MB).
+AVERAGE_BLOCK_ROWS = 4096
+
+
 def average_samples(
     sensors: tuple[str, ...] | list[str],
     touch: np.ndarray,
@@ -138,23 +142,29 @@ def average_samples(
     sensors = tuple(sensors)
     warnings: list[str] = []
     samples = np.asarray(samples, float)
-    finite = np.isfinite(samples)
-    n_bad = int((~finite).sum())
-    if n_bad:
-        warnings.append(f"{source}: skipped {n_bad} non-finite sample(s)")
     ids, inverse = np.unique(np.asarray(touch), return_inverse=True)
     k, n = len(ids), samples.shape[1] if samples.ndim == 2 else len(sensors)
     counts = np.zeros((k, n))
     sums = np.zeros((k, n))
     sq = np.zeros((k, n))
-    clean = np.where(finite, samples, 0.0)
-    np.add.at(counts, inverse, finite)
-    np.add.at(sums, inverse, clean)
+    # Block by block: a whole-array pass holds several temporaries of the samples' size,
+    # which for a full board's 1,000-touch recording (45,000 x 252 frames) was 4x its 90 MB.
+    step = AVERAGE_BLOCK_ROWS
+    blocks = [slice(a, a + step) for a in range(0, len(inverse), step)]
+    n_bad = 0
+    for b in blocks:
+        finite = np.isfinite(samples[b])
+        n_bad += int(finite.size - np.count_nonzero(finite))
+        np.add.at(counts, inverse[b], finite)
+        np.add.at(sums, inverse[b], np.where(finite, samples[b], 0.0))
+    if n_bad:
+        warnings.append(f"{source}: skipped {n_bad} non-finite sample(s)")
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = sums / counts
         # Two-pass variance keeps precision with raw counts around 10,000.
-        dev = np.where(finite, samples - mean[inverse], 0.0)
-        np.add.at(sq, inverse, dev**2)
+        for b in blocks:
+            dev = np.where(np.isfinite(samples[b]), samples[b] - mean[inverse[b]], 0.0)
+            np.add.at(sq, inverse[b], dev * dev)
         sd = np.sqrt(sq / np.maximum(counts - 1, 1))
     rows = np.bincount(inverse, minlength=k)
     first = np.zeros(k, dtype=np.int64)
