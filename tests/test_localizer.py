@@ -242,6 +242,26 @@ def test_joint_solver_is_more_accurate_with_finger_touches(patch_a, patch_b):
     assert pooled["robot", "joint"] <= 1.1 * pooled["robot", "alternate"], pooled
 
 
+def test_the_joint_solver_measures_how_far_the_touches_landed(patch_b):
+    """``params["touch_placement_sd_mm"]``: the joint solver's estimate of the touches'
+    placement scatter is near the simulated probe's (finger 1 mm, and 2 mm for a sloppy
+    one; robot 0.05 mm), where the default solver's sensors absorb part of it."""
+    from varskin.scene import ProbeModel
+
+    sloppy = ProbeModel("finger", 9.0, 2.0, 0.15, 2.0)
+    for probe, truth in (("robot", 0.05), ("finger", 1.0), (sloppy, 2.0)):
+        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), probe=probe, seed=8)
+        est = {
+            solver: localize(s.point_logs(), patch=patch_b, solver=solver).params[
+                "touch_placement_sd_mm"
+            ]
+            for solver in ("joint", "alternate")
+        }
+        assert 0.8 * truth <= est["joint"] <= 1.3 * truth, (truth, est)
+        if truth >= 1.0:
+            assert est["alternate"] < 0.85 * truth, (truth, est)  # the documented bias
+
+
 def test_unknown_solver_is_an_input_error(patch_b):
     logs = session(patch_b, "robot", 0, 10, 3).point_logs()
     with pytest.raises(InputError, match="solver must be one of joint, alternate"):

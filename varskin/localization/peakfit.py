@@ -1148,6 +1148,10 @@ def _predictions(loc: Localizer) -> Predictions:
     K = loc.n_logs
     params = {k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None}
     params["n_logs"] = K
+    # The solver's own estimates of how the touches scattered (per axis, mm) and how their
+    # pressing gain varied (log sd): a diagnostic of the session (docs/localizer.md).
+    params["touch_placement_sd_mm"] = float(loc.place_sd_mm)
+    params["touch_gain_sd"] = float(loc.gain_sd)
     status = np.array([OK] * n, dtype=object)
     snr = _snr(loc)
     if K < 3 or loc._n_distinct < 3:
