@@ -10,8 +10,9 @@ much better than the paper's method is peakfit, and is it ever *silently* wrong,
 a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
-[--solver alternate|joint]`` (31 s on the 2-core VM with 2 jobs). Peakfit runs with the
-layout prior (``patch=``), as ``varskin calibrate`` runs it; the paper method at ppcm 16. Prints one
+[--solver alternate|joint] [--prior patch|inferred|none]`` (31 s on the 2-core VM with 2
+jobs). Peakfit runs with the layout prior from the patch (``patch=``), as ``varskin
+calibrate`` runs it, unless ``--prior`` says otherwise; the paper method at ppcm 16. Prints one
 row per variant x patch x probe: located, pooled RMS of peakfit and of the paper method
 over the sensors both located, max error, how many ``ok`` sensors are above 2 mm, 2-sigma
 coverage, peakfit's estimate of the touches' placement scatter, and the silent failures.
@@ -81,7 +82,7 @@ def _rms(e: np.ndarray) -> float:
 
 
 def one_scene(job):
-    variant, pname, probe, seed, solver = job
+    variant, pname, probe, seed, solver, prior = job
     params, grid = VARIANTS[variant]
     patch = builtin_patch(pname)
     model = ProbeModel.named(probe)
@@ -90,7 +91,8 @@ def one_scene(job):
     )
     s = simulate_session(patch, _points(patch, grid, seed), model, seed, params)
     logs = s.point_logs()
-    pf = localize(logs, patch=patch, solver=solver)
+    kw = {"patch": patch} if prior == "patch" else {"infer_wires": prior == "inferred"}
+    pf = localize(logs, solver=solver, **kw)
     pp = localize(logs, method="paper", ppcm=16)
     ef = np.linalg.norm(pf.xy() - s.truth, axis=1)
     ep = np.linalg.norm(pp.xy() - s.truth, axis=1)
@@ -126,11 +128,18 @@ def main() -> None:
         choices=("alternate", "joint"),
         help="peakfit's batch solver (default alternate, the default of `localize`)",
     )
+    ap.add_argument(
+        "--prior",
+        default="patch",
+        choices=("patch", "inferred", "none"),
+        help="peakfit's layout prior: from the patch (default, as `varskin calibrate` runs "
+        "it), from wires inferred without a patch (`varskin localize` without --patch), or none",
+    )
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
     names = [v.strip() for v in args.only.split(",") if v.strip()] or list(VARIANTS)
     jobs = [
-        (v, pn, pr, seed, args.solver)
+        (v, pn, pr, seed, args.solver, args.prior)
         for v in names
         for pn in ("patch_a", "patch_b")
         for pr in ("robot", "finger")

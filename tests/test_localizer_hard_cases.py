@@ -93,6 +93,24 @@ def test_sensor_in_the_corner_and_outside_the_probes_hull(patch_b, grid):
     assert ok_errors(part, s.truth).max() <= TOL_MM
 
 
+def test_a_corner_crossing_with_its_wires_is_located_or_flagged(patch_b, grid):
+    """The corner as a real skin has it: the crossing's TX wire moved to x = 1 mm and its
+    RX wire to y = 24.4 mm, so its wire-mates move with it (no patch: wires inferred)."""
+    scene = Scene.create(patch_b, 1)
+    tx = np.array([q.tx for q in patch_b.sensors])
+    rx = np.array([q.rx for q in patch_b.sensors])
+    scene.true_xy[tx == 0, 0] = 1.0
+    scene.true_xy[rx == 0, 1] = 24.4
+    s = simulate_session(patch_b, grid, probe="robot", seed=1, scene=scene)
+    pred = check(peakfit.localize(s.point_logs()), 30)
+    corner = pred.estimates[0]
+    if corner.status == OK:
+        assert err(pred, s.truth, 0) <= min(TOL_MM, 3 * corner.sigma_mm)
+    else:
+        assert corner.status in ("uncertain", "outside"), corner.status
+    assert ok_errors(pred, s.truth).max() <= TOL_MM  # its wire-mates are not dragged off
+
+
 def test_two_sensors_3_mm_apart_are_both_located(patch_b, grid):
     scene = Scene.create(patch_b, 1)
     scene.true_xy[13] = scene.true_xy[12] + (3.0, 0.0)

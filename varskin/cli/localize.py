@@ -69,9 +69,10 @@ def register(subparsers) -> None:
     p.add_argument(
         "--patch",
         metavar="PATCH",
-        help="patch YAML or builtin name (patch_a, patch_b): its TX/RX wiring turns on peakfit's "
-        "layout prior (sensors on one wire share nearly one line) and its outline is drawn in "
-        "plots; default none",
+        help="patch YAML or builtin name (patch_a, patch_b): its TX/RX wiring and design feed "
+        "peakfit's layout prior (sensors on one wire share nearly one line; the wires lie near "
+        "their design) and its outline is drawn in plots; default none: peakfit infers the "
+        "wires from its fits when they form a clear grid, without the design",
     )
     p.add_argument("-o", "--output", metavar="PRED.csv", help="write predictions CSV here")
     p.add_argument("--json", metavar="PRED.json", help="also write predictions as JSON")

@@ -1,0 +1,139 @@
+"""Wires inferred from fitted positions: right when the grid is clear, absent when not."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from varskin.localization import localize
+from varskin.localization._wire_inference import infer_wires
+from varskin.simulate import simulate_session, uniform_grid
+
+
+def same_partition(found: np.ndarray, truth: np.ndarray) -> bool:
+    """Every pair of assigned sensors is together in ``found`` iff together in ``truth``."""
+    m = found >= 0
+    a = found[m][:, None] == found[m][None, :]
+    b = truth[m][:, None] == truth[m][None, :]
+    return bool((a == b).all())
+
+
+def wires_of(patch) -> tuple[np.ndarray, np.ndarray]:
+    return np.array([s.tx for s in patch.sensors]), np.array([s.rx for s in patch.sensors])
+
+
+@pytest.mark.parametrize("name", ["patch_a", "patch_b"])
+def test_a_clear_grid_gives_every_sensor_its_wires(name, request):
+    patch = request.getfixturevalue(name)
+    tx, rx = wires_of(patch)
+    rng = np.random.default_rng(1)
+    xy = patch.design_xy + rng.normal(0, 0.2, patch.design_xy.shape)
+    sd = np.full((len(tx), 2), 0.2)
+    found = infer_wires(xy, sd, np.ones(len(tx), bool), np.zeros(len(tx), bool), 0.25)
+    assert found is not None
+    gx, gy = found
+    assert (gx >= 0).all() and (gy >= 0).all()
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+
+
+def test_an_extrapolated_last_column_keeps_its_wire_by_rank(patch_b):
+    """The sensors beyond the last probe column, 2-4 mm off with sd ~3 mm, are the ones the
+    prior is for: within their rows they are still the last, so they keep their TX wire."""
+    tx, rx = wires_of(patch_b)
+    rng = np.random.default_rng(2)
+    xy = patch_b.design_xy + rng.normal(0, 0.3, patch_b.design_xy.shape)
+    sd = np.full((len(tx), 2), 0.3)
+    last = tx == tx.max()
+    xy[last, 0] += [4.0, 2.5, 3.0]
+    sd[last, 0] = 3.0  # loose along x only: one flank seen
+    gx, gy = infer_wires(xy, sd, np.ones(len(tx), bool), np.zeros(len(tx), bool), 0.25)
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert (gx[last] >= 0).all() and len(set(gx[last])) == 1
+
+
+def test_columns_too_close_to_tell_apart_get_no_wire(patch_b):
+    """Patch B's last two TX wires are 3.2 mm apart: with 1 mm fits the ranks within a row
+    may swap, so those two columns keep no TX wire; the others and every row do."""
+    tx, rx = wires_of(patch_b)
+    rng = np.random.default_rng(3)
+    xy = patch_b.design_xy + rng.normal(0, [1.0, 0.3], patch_b.design_xy.shape)
+    sd = np.tile([1.0, 0.3], (len(tx), 1))
+    gx, gy = infer_wires(xy, sd, np.ones(len(tx), bool), np.zeros(len(tx), bool), 0.25)
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert (gx[tx >= tx.max() - 1] == -1).all()
+    assert (gx[tx < tx.max() - 1] >= 0).all() and (gy >= 0).all()
+
+
+def test_a_loose_sensor_far_off_gets_no_wire(patch_b):
+    """A sensor too loose to be located, fitted 20 mm off with a 10 mm sd (as on Patch A,
+    12 x 3 robot, seed 317): more than one row is within its reach, so it gets no wire, and
+    the others keep theirs."""
+    tx, rx = wires_of(patch_b)
+    rng = np.random.default_rng(6)
+    xy = patch_b.design_xy + rng.normal(0, 0.2, patch_b.design_xy.shape)
+    sd = np.full((len(tx), 2), 0.2)
+    located = np.ones(len(tx), bool)
+    far = 3  # S4
+    xy[far] = (-0.5, -14.0)
+    sd[far] = (29.0, 10.0)
+    located[far] = False
+    gx, gy = infer_wires(xy, sd, located, ~located, 0.25)
+    assert gx[far] == -1 and gy[far] == -1
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert ((gx >= 0) & (gy >= 0)).sum() >= 25
+
+
+def test_no_grid_means_no_wires():
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(0, 100, (30, 2))  # scattered: no rows, no columns
+    assert (
+        infer_wires(xy, np.full((30, 2), 0.3), np.ones(30, bool), np.zeros(30, bool), 0.25) is None
+    )
+    # A grid turned 30 degrees in the patch frame: its wires are not along x and y.
+    gx, gy = np.meshgrid(np.arange(10) * 10.0, np.arange(3) * 8.0, indexing="ij")
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    c, s = np.cos(np.pi / 6), np.sin(np.pi / 6)
+    turned = pts @ np.array([[c, s], [-s, c]])
+    assert (
+        infer_wires(turned, np.full((30, 2), 0.2), np.ones(30, bool), np.zeros(30, bool), 0.25)
+        is None
+    )
+
+
+def test_rows_that_would_merge_two_wires_are_not_taken(patch_b):
+    """Two RX wires 3 mm apart, too close to cut with 0.7 mm fits, and a third far off, with
+    five sensors of the close pair unlocated: the pair then fits one 'row' of 15, as a 15 x 2
+    grid would have it. Its columns come out unclear (each holds two sensors at one x), so
+    that grid is refused, and with the 10 x 3 one unclear too, nothing is returned."""
+    tx, rx = wires_of(patch_b)
+    xy = patch_b.design_xy.copy()
+    xy[:, 1] = np.array([20.0, 9.5, 6.5])[rx]
+    rng = np.random.default_rng(5)
+    xy += rng.normal(0, 0.1, xy.shape)
+    usable = np.ones(len(tx), bool)
+    usable[np.flatnonzero(rx >= 1)[::3][:5]] = False
+    assert (
+        infer_wires(xy, np.full((len(tx), 2), 0.7), usable, np.zeros(len(tx), bool), 0.25) is None
+    )
+
+
+def test_localize_without_a_patch_infers_the_wires_of_a_finger_session(patch_b):
+    """No patch, no wires: the layout prior runs on inferred wires, as well as with the
+    wires given, and better than without it; ``infer_wires=False`` turns it off."""
+    tx, rx = wires_of(patch_b)
+    wires = {s.name: (s.tx, s.rx) for s in patch_b.sensors}
+    err = {"inferred": [], "given": [], "off": []}
+    for seed in (11, 12, 13):
+        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "finger", seed)
+        logs = s.point_logs()
+        runs = {
+            "inferred": localize(logs),
+            "given": localize(logs, wires=wires),
+            "off": localize(logs, infer_wires=False),
+        }
+        for k, pred in runs.items():
+            e = np.hypot(*(pred.xy() - s.truth).T)
+            err[k].append(e[np.isfinite(e)])
+    rms = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in err.items()}
+    assert rms["inferred"] <= 1.05 * rms["given"], rms
+    assert rms["inferred"] <= 0.9 * rms["off"], rms

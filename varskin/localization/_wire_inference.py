@@ -1,0 +1,203 @@
+"""Which sensors share a wire, inferred from their fitted positions when nobody said.
+
+Why it exists: the layout prior needs each sensor's TX and RX wire. A session knows them
+from its patch; a point-log CSV given to ``varskin localize`` without ``--patch`` does not,
+and without the prior the sensors at the probes' edge are extrapolated (Patch B finger
+scenes: a sensor above 2 mm on 27 of 60 fresh seeds, against 1 with the patch given).
+Every sensor of a mutual-capacitance skin is the crossing of one TX and one RX wire, so on
+a flat patch the fitted positions fall into rows (shared y) and columns (shared x). This
+looks for a split into rows and columns that forms a grid, one sensor per crossing, and
+answers only when it is clear and unique; a wrong grouping would pull sensors to the wrong
+wire, where no answer leaves them as they were.
+
+* The sensor count is rows x columns (a full grid); every factorization is tried, and
+  exactly one must pass.
+* Rows: the located sensors sorted by y are cut at the widest gaps, measured in the two
+  neighbours' sds; every cut at least CUT_SDS, every other gap under JOIN_SDS, every sensor
+  within REACH_SDS of its row's centre. A sensor loose in y can bridge two rows, so the
+  loosest are set aside until the rows are clear (none loose left: no grid).
+* Columns: within each complete row the sensors are ranked along x. A column is clear if
+  its centre is CUT_SDS typical sds from its neighbours' and its sensors are within
+  REACH_SDS of it; an unclear column's sensors keep only their row.
+* Loose sensors (set aside, on an incomplete row, or too loose to be located) join the
+  one row or column within JOIN_SDS of them, if every other is beyond REACH_SDS and their
+  sd is under half the gap to the next one.
+* Refused: a located sensor out of reach of every row (a row was missed), a row with more
+  sensors than columns, or complete rows that leave most sensors in unclear columns (rows
+  that merge two wires rank the sensors of one column apart).
+
+Ranking within rows is what places the extrapolated sensors, the ones the prior is for:
+fitted 2-4 mm beyond the last probe column with a sd near 3 mm along x, they are still the
+last of their rows. ``benchmarks/wire_inference.py`` checks the groups against the
+simulator's wires; several of the rules above came from the wrong groupings it found, and
+the comments below name those scenes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CUT_SDS = 4.0  # a gap between wires is at least this many sds of the sensors' positions
+JOIN_SDS = 2.5  # neighbours on one wire (or a loose sensor and its wire) are closer, in sds
+REACH_SDS = 3.0  # every sensor of a wire lies within this many sds of its centre
+PRECISE_FACTOR = 2.0  # loose: sd above this multiple of the typical (median) sd
+
+
+def infer_wires(
+    xy: np.ndarray,
+    sd: np.ndarray,
+    located: np.ndarray,
+    loose: np.ndarray,
+    scatter_mm: float,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """(tx, rx) wire indices per sensor (-1: unknown), or None if no clear grid.
+
+    ``xy`` (N, 2) fitted positions (mm), ``sd`` (N, 2) their sd along x and y; ``located``
+    (N,) the sensors whose fits shape the grid, ``loose`` (N,) those too loose to be
+    located by themselves, which only join the wires within their reach; ``scatter_mm``
+    how far crossings lie from their wire's line (jitter, a gentle bend), added to each
+    sd: a robot's 0.1 mm fits would otherwise split a wire.
+    """
+    n = len(xy)
+    sd = np.hypot(sd, scatter_mm)
+    finite = np.isfinite(xy).all(axis=1) & np.isfinite(sd).all(axis=1) & (sd > 0).all(axis=1)
+    ok = located & finite
+    if ok.sum() < 4:
+        return None
+    idx = np.flatnonzero(ok)
+    ref = np.median(sd[idx], axis=0)  # typical sd along x and along y
+    found = []
+    for rows in range(2, n // 2 + 1):
+        if n % rows:
+            continue
+        r = _rows(xy[:, 1], sd[:, 1], idx, rows, float(ref[1]))
+        # No row may hold more sensors than there are columns.
+        if r is None or np.bincount(r[0][r[0] >= 0], minlength=rows).max() > n // rows:
+            continue
+        gy, row_centre, row_sd = r
+        c = _columns(xy[:, 0], sd[:, 0], idx, gy, n // rows, rows, float(ref[0]))
+        gx, col_centre, col_sd = c
+        # Rows that merge two wires rank sensors of one column apart: columns then come out
+        # unclear. A grid whose complete rows give mostly unclear columns is not this one.
+        if col_centre is not None and (gx[idx] >= 0).sum() < 0.5 * idx.size:
+            continue
+        found.append((gx, gy, row_centre, row_sd, col_centre, col_sd))
+    if len(found) != 1:
+        return None
+    gx, gy, row_centre, row_sd, col_centre, col_sd = found[0]
+    for i in np.flatnonzero(loose & finite & ~located):
+        gy[i] = _only_one(np.abs(row_centre - xy[i, 1]), np.hypot(sd[i, 1], row_sd), row_centre)
+        if gy[i] < 0 or col_centre is None:
+            continue
+        d = np.abs(col_centre - xy[i, 0])
+        held = gx[(gy == gy[i]) & (gx >= 0)]
+        d[held] = np.inf  # one sensor per crossing
+        c = _only_one(d, np.hypot(sd[i, 0], np.abs(col_sd)), col_centre)
+        # An unclear column within reach counts as a candidate, but is never the answer.
+        gx[i] = c if c >= 0 and col_sd[c] > 0 else -1
+    return gx, gy
+
+
+def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float):
+    """Rows 0..k-1 along y with the rows' centres and their sds, or None if not clear.
+
+    Gaps between neighbours in y are measured in their sds. The k-1 widest are the cuts;
+    the rows are clear if every cut is at least CUT_SDS and every other gap under JOIN_SDS.
+    A sensor whose fit is loose in y can bridge two rows, so while the rows are not clear the
+    loosest sensor (sd above PRECISE_FACTOR x ``ref``) is set aside; those join the one row
+    within their reach afterwards, if only one is (else -1)."""
+    keep = idx[np.argsort(y[idx], kind="stable")]
+    while keep.size >= k:
+        ys, ss = y[keep], sd[keep]
+        z = np.diff(ys) / np.hypot(ss[:-1], ss[1:])
+        cuts = np.sort(np.argsort(z)[::-1][: k - 1])
+        inner = np.delete(z, cuts)
+        if z[cuts].min() >= CUT_SDS and (inner.size == 0 or inner.max() < JOIN_SDS):
+            break
+        loosest = int(np.argmax(ss))
+        if ss[loosest] <= PRECISE_FACTOR * ref:
+            return None
+        keep = np.delete(keep, loosest)
+    else:
+        return None
+    step = np.zeros(keep.size, int)
+    step[cuts + 1] = 1
+    lab = np.cumsum(step)
+    labels = np.full(y.size, -1)
+    labels[keep] = lab
+    w = 1.0 / sd[keep] ** 2
+    wsum = np.bincount(lab, weights=w, minlength=k)
+    centre = np.bincount(lab, weights=w * y[keep], minlength=k) / wsum
+    centre_sd = 1.0 / np.sqrt(wsum)
+    # A row is one wire: each of its sensors within reach of its centre. A chain of
+    # sensors each close to the next can span two wires (Patch B 12 x 3 finger, seed 354:
+    # 9 mm), which the gaps alone do not see.
+    if (np.abs(y[keep] - centre[lab]) > REACH_SDS * np.hypot(sd[keep], centre_sd[lab])).any():
+        return None
+    # Every loose sensor, kept or set aside, by reach alone: where it fell in the sorted
+    # order is no evidence (Patch B 12 x 3 robot, seed 317: one 11 mm sd in y, 20 mm off).
+    # A sensor no row reaches refutes this many rows (a row of loose sensors was left
+    # out, and its sensors would be pulled to a neighbour: Patch B 12 x 3 robot, seed 323).
+    for i in idx[sd[idx] > PRECISE_FACTOR * ref]:
+        d = np.abs(centre - y[i])
+        both = np.hypot(sd[i], centre_sd)
+        if (d > REACH_SDS * both).all():
+            return None
+        labels[i] = _only_one(d, both, centre)
+    return labels, centre, centre_sd
+
+
+def _only_one(distance: np.ndarray, sd: np.ndarray, centre: np.ndarray) -> int:
+    """The one wire within JOIN_SDS sd while every other is beyond REACH_SDS, and the sd
+    under half the gap to the next wire (a looser fit cannot tell them apart), or -1."""
+    z = distance / sd
+    near = np.flatnonzero(z <= REACH_SDS)
+    if near.size != 1 or z[near[0]] >= JOIN_SDS:
+        return -1
+    j = int(near[0])
+    others = np.delete(np.arange(centre.size), j)
+    if others.size and 2.0 * sd[j] >= np.abs(centre[others] - centre[j]).min():
+        return -1
+    return j
+
+
+def _columns(x, sd, idx, gy, cols: int, rows: int, ref: float):
+    """Columns by rank of x within each complete row, the other sensors at the one free
+    column within their reach; -1 for every sensor of a column that is not clear (see the
+    module docstring). Also the columns' centres and their sds (None: no complete row)."""
+    gx = np.full(len(x), -1)
+    members = [idx[gy[idx] == r] for r in range(rows)]
+    full = [m[np.argsort(x[m], kind="stable")] for m in members if m.size == cols]
+    if not full:
+        return gx, None, None
+    for m in full:
+        gx[m] = np.arange(cols)
+    w = 1.0 / sd**2
+    ranked = np.array(full)  # (F, cols) sensor indices
+    wsum = w[ranked].sum(axis=0)
+    centre = (x[ranked] * w[ranked]).sum(axis=0) / wsum
+    centre_sd = 1.0 / np.sqrt(wsum)  # a column known from one loose sensor is no yardstick
+    for m in members:
+        if m.size == cols:
+            continue
+        # A sensor of an incomplete row takes a column only if that is the one free column
+        # within its reach; nearest is not enough (Patch B 12 x 3 finger, seed 332: a
+        # sensor 3.4 mm sd between the last two columns took the wrong one).
+        for i in m[np.argsort(sd[m])]:  # the surest first
+            d = np.abs(centre - x[i])
+            d[gx[m[gx[m] >= 0]]] = np.inf  # taken in this row
+            gx[i] = _only_one(d, np.hypot(sd[i], centre_sd), centre)
+    # Columns that cannot be told apart keep no wire: two whose centres are closer than
+    # CUT_SDS typical sd (their sensors may have swapped ranks), and any column with a
+    # sensor out of reach of its centre, with its neighbours (the rank may be off by one).
+    unclear = np.zeros(cols, bool)
+    close = np.diff(centre) <= CUT_SDS * ref
+    unclear[:-1] |= close
+    unclear[1:] |= close
+    placed = idx[gx[idx] >= 0]
+    reach = REACH_SDS * np.hypot(sd[placed], centre_sd[gx[placed]])
+    far = gx[placed][np.abs(x[placed] - centre[gx[placed]]) > reach]
+    for c in far:
+        unclear[max(c - 1, 0) : c + 2] = True
+    gx[(gx >= 0) & unclear[np.maximum(gx, 0)]] = -1
+    return gx, centre, np.where(unclear, -centre_sd, centre_sd)  # < 0: unclear
