@@ -274,6 +274,8 @@ def test_unknown_parameter_is_an_input_error(patch_b):
         localize(logs, eta=0.65)
     with pytest.raises(InputError, match="min_snr"):
         localize(logs, min_snr=-1)
+    with pytest.raises(InputError, match="infer_wires must be true or false"):
+        localize(logs, infer_wires="yes")
 
 
 def test_predictions_carry_snr_from_the_papers_equation(patch_b):

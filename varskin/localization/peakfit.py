@@ -132,18 +132,19 @@ def check_params(params: dict) -> dict:
             f"known: {', '.join(DEFAULTS)}"
         )
     out = {**DEFAULTS, **params}
-    for key in ("wire_scatter_mm", "min_snr", "max_sigma_mm", "window_widths", "cauchy_c"):
+    optional = ("spacing_mm", "placement_sd_mm")  # None: estimated from the data
+    for key in (
+        "wire_scatter_mm",
+        "min_snr",
+        "max_sigma_mm",
+        "window_widths",
+        "cauchy_c",
+        *optional,
+    ):
         v = out[key]
+        if v is None and key in optional:
+            continue
         if (
-            isinstance(v, bool)
-            or not isinstance(v, (int, float))
-            or not v > 0
-            or not math.isfinite(v)
-        ):
-            raise InputError(f"{NAME}: {key} must be a positive number, got {v!r}")
-    for key in ("spacing_mm", "placement_sd_mm"):
-        v = out[key]
-        if v is not None and (
             isinstance(v, bool)
             or not isinstance(v, (int, float))
             or not v > 0
