@@ -77,6 +77,17 @@ def _points(patch, grid, seed):
     return uniform_grid(patch, *grid)
 
 
+def _variant_names(only: str) -> list[str]:
+    """``--only`` split at commas, except inside a variant's own name ("drift x2, fast")."""
+    names: list[str] = []
+    for part in (p.strip() for p in only.split(",")):
+        if names and names[-1] not in VARIANTS and f"{names[-1]}, {part}" in VARIANTS:
+            names[-1] = f"{names[-1]}, {part}"
+        elif part:
+            names.append(part)
+    return names
+
+
 def _rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
 
@@ -137,7 +148,10 @@ def main() -> None:
     )
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
-    names = [v.strip() for v in args.only.split(",") if v.strip()] or list(VARIANTS)
+    names = _variant_names(args.only) or list(VARIANTS)
+    unknown = [v for v in names if v not in VARIANTS]
+    if unknown:
+        ap.error(f"--only: unknown variant(s) {unknown}; known: {', '.join(VARIANTS)}")
     jobs = [
         (v, pn, pr, seed, args.solver, args.prior)
         for v in names
