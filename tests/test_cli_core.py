@@ -214,3 +214,14 @@ def test_plots_handle_error_circles_and_sensors_without_data(tmp_path):
         predictions, tmp_path / "p.png", xy, {"A": (4.0, 2.5)}, outline_mm=(10.0, 5.0)
     )
     assert path.stat().st_size > 5000
+
+
+def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, capsys):
+    logs, _ = simulated
+    for extra, words in (
+        ([], "wires inferred from the fits (no --patch)"),
+        (["--patch", "patch_b"], "wires from the patch"),
+    ):
+        assert main(["localize", str(logs), *extra]) == 0
+        last = capsys.readouterr().out.strip().splitlines()[-1]
+        assert last.startswith("peakfit: ") and last.endswith(words), last

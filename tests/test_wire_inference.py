@@ -134,6 +134,7 @@ def test_localize_without_a_patch_infers_the_wires_of_a_finger_session(patch_b):
         for k, pred in runs.items():
             e = np.hypot(*(pred.xy() - s.truth).T)
             err[k].append(e[np.isfinite(e)])
+        assert [runs[k].params["wires"] for k in runs] == ["inferred", "given", "none"]
     rms = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in err.items()}
     assert rms["inferred"] <= 1.05 * rms["given"], rms
     assert rms["inferred"] <= 0.9 * rms["off"], rms

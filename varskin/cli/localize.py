@@ -125,6 +125,14 @@ def print_warnings(logs) -> None:
         print(f"varskin: warning: {w}", file=sys.stderr)
 
 
+# Where peakfit's layout prior took the wires from, as the summary line says it.
+WIRES_NOTE = {
+    "patch": "wires from the patch",
+    "inferred": "wires inferred from the fits (no --patch)",
+    "none": "no wire prior: the fits form no clear grid (--patch gives the wires)",
+}
+
+
 def prediction_table(predictions) -> str:
     lines = [f"{'sensor':<8} {'x_mm':>8} {'y_mm':>8} {'sigma_mm':>8} {'snr_db':>7} status"]
     for e in predictions:
@@ -172,7 +180,11 @@ def run(args) -> int:
     if not args.quiet:
         print(prediction_table(predictions))
         ok = sum(e.status == "ok" for e in predictions)
-        print(f"{predictions.method}: {ok}/{len(predictions)} sensors localized")
+        line = f"{predictions.method}: {ok}/{len(predictions)} sensors localized"
+        wires = predictions.params.get("wires")
+        if wires in WIRES_NOTE:
+            line += f"; {WIRES_NOTE[wires]}"
+        print(line)
     return 0
 
 

@@ -1237,6 +1237,18 @@ def _predictions(loc: Localizer) -> Predictions:
             axes = axes * (sd**2 / np.maximum(axes.mean(axis=1), 1e-300))[:, None]
         scatter = float(loc.params["wire_scatter_mm"])
         groups = infer_wires(xy, np.sqrt(axes), ok, loose, scatter)
+    # Where the layout prior's wires came from, for the user: "none" means no clear grid.
+    params["wires"] = (
+        "off"
+        if not loc.params["layout_prior"]
+        else "patch"
+        if loc.params["patch"] is not None
+        else "given"
+        if loc.groups is not None
+        else "none"
+        if groups is None
+        else "inferred"
+    )
     if groups is not None and loc.params["layout_prior"] and ok.sum() >= 2:
         tx, rx = groups
         floor = float(loc.params["wire_scatter_mm"])
