@@ -4,18 +4,19 @@ Why it exists: issue 3 warns that the product is judged on recordings that are n
 repository. Every other localizer benchmark uses the simulator's defaults, the 20 x 5 grid
 and seeds that tests and tuning never saw. This one moves one knob at a time well past
 those defaults (noise, peak, drift, wire displacement, footprint spread, response shape,
-short touches, grid density, scattered touches, the probe's placement) and asks two questions per variant: how
-much better than the paper's method is peakfit, and is it ever *silently* wrong, i.e.
-``ok`` with an error above both 2 mm and 3 sigma_mm. A flagged status is an honest answer;
-a confident wrong position is not.
+short touches, grid density, scattered touches, the probe's placement) and asks two
+questions per variant: how much better than the paper's method is peakfit, and is it ever
+*silently* wrong, i.e. ``ok`` with an error above both 2 mm and 3 sigma_mm. A flagged
+status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
 [--solver alternate|joint] [--prior patch|inferred|none]`` (31 s on the 2-core VM with 2
 jobs). Peakfit runs with the layout prior from the patch (``patch=``), as ``varskin
-calibrate`` runs it, unless ``--prior`` says otherwise; the paper method at ppcm 16. Prints one
-row per variant x patch x probe: located, pooled RMS of peakfit and of the paper method
-over the sensors both located, max error, how many ``ok`` sensors are above 2 mm, 2-sigma
-coverage, peakfit's estimate of the touches' placement scatter, and the silent failures.
+calibrate`` runs it, unless ``--prior`` says otherwise; the paper method at ppcm 16.
+Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
+paper method over the sensors both located, max error, how many ``ok`` sensors are above
+2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, and the
+silent failures.
 """
 
 from __future__ import annotations
@@ -183,7 +184,8 @@ def main() -> None:
             f"| {key[0]} | {key[1][-1].upper()} | {key[2]} | {ok}/{n} | {_rms(ef):.3f} mm "
             f"| {_rms(pb):.3f} mm | {_rms(fb) / _rms(pb):.2f} | {ef.max():.2f} mm "
             f"| {int((ef > 2.0).sum())} | {cov.mean():.3f} "
-            f"| {np.median([r['place_sd'] for r in rs]):.2f} mm | {len(silent)}{': ' + desc if desc else ''} |",
+            f"| {np.median([r['place_sd'] for r in rs]):.2f} mm "
+            f"| {len(silent)}{': ' + desc if desc else ''} |",
             flush=True,
         )
 
