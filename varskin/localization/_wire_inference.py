@@ -35,12 +35,48 @@ the comments below name those scenes.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 CUT_SDS = 4.0  # a gap between wires is at least this many sds of the sensors' positions
 JOIN_SDS = 2.5  # neighbours on one wire (or a loose sensor and its wire) are closer, in sds
 REACH_SDS = 3.0  # every sensor of a wire lies within this many sds of its centre
 PRECISE_FACTOR = 2.0  # loose: sd above this multiple of the typical (median) sd
+
+
+class _Family(NamedTuple):
+    """One family of wires, the rows or the columns: where each lies, how surely, and which
+    may take a sensor that joins by reach (an unclear one is a candidate, never the answer)."""
+
+    centre: np.ndarray  # (k,) mm
+    sd: np.ndarray  # (k,) sd of each centre
+    clear: np.ndarray  # (k,) bool
+
+    def reaches(self, v: float, sd_v: float) -> np.ndarray:
+        """(k,) is each wire within REACH_SDS of a sensor at ``v`` with sd ``sd_v``?"""
+        return np.abs(self.centre - v) <= REACH_SDS * np.hypot(sd_v, self.sd)
+
+    def holds(self, v: np.ndarray, sd_v: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """Is each sensor (at ``v``, sd ``sd_v``) within REACH_SDS of its own wire ``j``?"""
+        return np.abs(v - self.centre[j]) <= REACH_SDS * np.hypot(sd_v, self.sd[j])
+
+    def join(self, v: float, sd_v: float, taken: np.ndarray | None = None) -> int:
+        """The wire a sensor at ``v`` joins, or -1: the one within JOIN_SDS while every other
+        (but the ``taken``) is beyond REACH_SDS, with the sd under half the gap to the next
+        wire (a looser fit cannot tell them apart)."""
+        both = np.hypot(sd_v, self.sd)
+        z = np.abs(self.centre - v) / both
+        if taken is not None:
+            z[taken] = np.inf
+        near = np.flatnonzero(z <= REACH_SDS)
+        if near.size != 1 or z[near[0]] >= JOIN_SDS:
+            return -1
+        j = int(near[0])
+        gap = np.abs(np.delete(self.centre, j) - self.centre[j])
+        if gap.size and 2.0 * both[j] >= gap.min():
+            return -1
+        return j if self.clear[j] else -1
 
 
 def infer_wires(
@@ -74,32 +110,27 @@ def infer_wires(
         # No row may hold more sensors than there are columns.
         if r is None or np.bincount(r[0][r[0] >= 0], minlength=rows).max() > n // rows:
             continue
-        gy, row_centre, row_sd = r
-        c = _columns(xy[:, 0], sd[:, 0], idx, gy, n // rows, rows, float(ref[0]))
-        gx, col_centre, col_sd = c
+        gy, row_family = r
+        gx, col_family = _columns(xy[:, 0], sd[:, 0], idx, gy, n // rows, rows, float(ref[0]))
         # Rows that merge two wires rank sensors of one column apart: columns then come out
         # unclear. A grid whose complete rows give mostly unclear columns is not this one.
-        if col_centre is not None and (gx[idx] >= 0).sum() < 0.5 * idx.size:
+        if col_family is not None and (gx[idx] >= 0).sum() < 0.5 * idx.size:
             continue
-        found.append((gx, gy, row_centre, row_sd, col_centre, col_sd))
+        found.append((gx, gy, row_family, col_family))
     if len(found) != 1:
         return None
-    gx, gy, row_centre, row_sd, col_centre, col_sd = found[0]
+    gx, gy, row_family, col_family = found[0]
     for i in np.flatnonzero(loose & finite & ~located):
-        gy[i] = _only_one(np.abs(row_centre - xy[i, 1]), np.hypot(sd[i, 1], row_sd), row_centre)
-        if gy[i] < 0 or col_centre is None:
-            continue
-        d = np.abs(col_centre - xy[i, 0])
-        held = gx[(gy == gy[i]) & (gx >= 0)]
-        d[held] = np.inf  # one sensor per crossing
-        c = _only_one(d, np.hypot(sd[i, 0], np.abs(col_sd)), col_centre)
-        # An unclear column within reach counts as a candidate, but is never the answer.
-        gx[i] = c if c >= 0 and col_sd[c] > 0 else -1
+        gy[i] = row_family.join(xy[i, 1], sd[i, 1])
+        if gy[i] >= 0 and col_family is not None:
+            held = gx[(gy == gy[i]) & (gx >= 0)]  # one sensor per crossing
+            gx[i] = col_family.join(xy[i, 0], sd[i, 0], held)
     return gx, gy
 
 
 def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float):
-    """Rows 0..k-1 along y with the rows' centres and their sds, or None if not clear.
+    """Rows 0..k-1 along y (labels, -1: none) and the rows as a family, or None if the
+    rows are not clear.
 
     Gaps between neighbours in y are measured in their sds. The k-1 widest are the cuts;
     the rows are clear if every cut is at least CUT_SDS and every other gap under JOIN_SDS.
@@ -128,55 +159,41 @@ def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float):
     w = 1.0 / sd[keep] ** 2
     wsum = np.bincount(lab, weights=w, minlength=k)
     centre = np.bincount(lab, weights=w * y[keep], minlength=k) / wsum
-    centre_sd = 1.0 / np.sqrt(wsum)
+    family = _Family(centre, 1.0 / np.sqrt(wsum), np.ones(k, bool))
     # A row is one wire: each of its sensors within reach of its centre. A chain of
     # sensors each close to the next can span two wires (Patch B 12 x 3 finger, seed 354:
     # 9 mm), which the gaps alone do not see.
-    if (np.abs(y[keep] - centre[lab]) > REACH_SDS * np.hypot(sd[keep], centre_sd[lab])).any():
+    if not family.holds(y[keep], sd[keep], lab).all():
         return None
     # Every loose sensor, kept or set aside, by reach alone: where it fell in the sorted
     # order is no evidence (Patch B 12 x 3 robot, seed 317: one 11 mm sd in y, 20 mm off).
     # A sensor no row reaches refutes this many rows (a row of loose sensors was left
     # out, and its sensors would be pulled to a neighbour: Patch B 12 x 3 robot, seed 323).
     for i in idx[sd[idx] > PRECISE_FACTOR * ref]:
-        d = np.abs(centre - y[i])
-        both = np.hypot(sd[i], centre_sd)
-        if (d > REACH_SDS * both).all():
+        if not family.reaches(y[i], sd[i]).any():
             return None
-        labels[i] = _only_one(d, both, centre)
-    return labels, centre, centre_sd
-
-
-def _only_one(distance: np.ndarray, sd: np.ndarray, centre: np.ndarray) -> int:
-    """The one wire within JOIN_SDS sd while every other is beyond REACH_SDS, and the sd
-    under half the gap to the next wire (a looser fit cannot tell them apart), or -1."""
-    z = distance / sd
-    near = np.flatnonzero(z <= REACH_SDS)
-    if near.size != 1 or z[near[0]] >= JOIN_SDS:
-        return -1
-    j = int(near[0])
-    others = np.delete(np.arange(centre.size), j)
-    if others.size and 2.0 * sd[j] >= np.abs(centre[others] - centre[j]).min():
-        return -1
-    return j
+        labels[i] = family.join(y[i], sd[i])
+    return labels, family
 
 
 def _columns(x, sd, idx, gy, cols: int, rows: int, ref: float):
     """Columns by rank of x within each complete row, the other sensors at the one free
     column within their reach; -1 for every sensor of a column that is not clear (see the
-    module docstring). Also the columns' centres and their sds (None: no complete row)."""
+    module docstring). Also the columns as a family (None: no complete row to rank)."""
     gx = np.full(len(x), -1)
     members = [idx[gy[idx] == r] for r in range(rows)]
     full = [m[np.argsort(x[m], kind="stable")] for m in members if m.size == cols]
     if not full:
-        return gx, None, None
+        return gx, None
     for m in full:
         gx[m] = np.arange(cols)
     w = 1.0 / sd**2
     ranked = np.array(full)  # (F, cols) sensor indices
     wsum = w[ranked].sum(axis=0)
-    centre = (x[ranked] * w[ranked]).sum(axis=0) / wsum
-    centre_sd = 1.0 / np.sqrt(wsum)  # a column known from one loose sensor is no yardstick
+    # Each centre's sd: a column known from one loose sensor is no yardstick.
+    family = _Family(
+        (x[ranked] * w[ranked]).sum(axis=0) / wsum, 1.0 / np.sqrt(wsum), np.ones(cols, bool)
+    )
     for m in members:
         if m.size == cols:
             continue
@@ -184,20 +201,17 @@ def _columns(x, sd, idx, gy, cols: int, rows: int, ref: float):
         # within its reach; nearest is not enough (Patch B 12 x 3 finger, seed 332: a
         # sensor 3.4 mm sd between the last two columns took the wrong one).
         for i in m[np.argsort(sd[m])]:  # the surest first
-            d = np.abs(centre - x[i])
-            d[gx[m[gx[m] >= 0]]] = np.inf  # taken in this row
-            gx[i] = _only_one(d, np.hypot(sd[i], centre_sd), centre)
+            gx[i] = family.join(x[i], sd[i], gx[m[gx[m] >= 0]])
     # Columns that cannot be told apart keep no wire: two whose centres are closer than
     # CUT_SDS typical sd (their sensors may have swapped ranks), and any column with a
     # sensor out of reach of its centre, with its neighbours (the rank may be off by one).
     unclear = np.zeros(cols, bool)
-    close = np.diff(centre) <= CUT_SDS * ref
+    close = np.diff(family.centre) <= CUT_SDS * ref
     unclear[:-1] |= close
     unclear[1:] |= close
     placed = idx[gx[idx] >= 0]
-    reach = REACH_SDS * np.hypot(sd[placed], centre_sd[gx[placed]])
-    far = gx[placed][np.abs(x[placed] - centre[gx[placed]]) > reach]
+    far = gx[placed][~family.holds(x[placed], sd[placed], gx[placed])]
     for c in far:
         unclear[max(c - 1, 0) : c + 2] = True
     gx[(gx >= 0) & unclear[np.maximum(gx, 0)]] = -1
-    return gx, centre, np.where(unclear, -centre_sd, centre_sd)  # < 0: unclear
+    return gx, family._replace(clear=~unclear)

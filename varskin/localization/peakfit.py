@@ -1227,31 +1227,26 @@ def _predictions(loc: Localizer) -> Predictions:
     # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
     # only one flank seen) but passed every other check may be placed by its wires.
     loose = status == UNCERTAIN
-    groups = loc.groups
-    if groups is None and loc.params["layout_prior"] and loc.params["infer_wires"]:
-        # Inferred afresh every time, the live updates too: in a trial, wires kept from the
-        # last re-solve put a full board's last update up to 0.87 mm from the batch (0.08).
-        # Per axis: a sensor beyond the last probe column is loose along x only.
-        axes = np.maximum(np.diagonal(f.cov_xy, axis1=1, axis2=2), 0.0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            axes = axes * (sd**2 / np.maximum(axes.mean(axis=1), 1e-300))[:, None]
-        scatter = float(loc.params["wire_scatter_mm"])
-        groups = infer_wires(xy, np.sqrt(axes), ok, loose, scatter)
-    # Where the layout prior's wires came from, for the user: "none" means no clear grid.
-    params["wires"] = (
-        "off"
-        if not loc.params["layout_prior"]
-        else "patch"
-        if loc.params["patch"] is not None
-        else "given"
-        if loc.groups is not None
-        else "none"
-        if groups is None
-        else "inferred"
-    )
-    if groups is not None and loc.params["layout_prior"] and ok.sum() >= 2:
+    floor = float(loc.params["wire_scatter_mm"])
+    # Where the layout prior's wires come from, also told to the user ("none": no clear
+    # grid in the fits).
+    groups, params["wires"] = loc.groups, "patch" if loc.params["patch"] is not None else "given"
+    if not loc.params["layout_prior"]:
+        groups, params["wires"] = None, "off"
+    elif groups is None:
+        params["wires"] = "none"
+        if loc.params["infer_wires"]:
+            # Inferred afresh every time, the live updates too: in a trial, wires kept from
+            # the last re-solve put a full board's last update up to 0.87 mm from the batch
+            # (0.08). Per axis: a sensor beyond the last probe column is loose along x only.
+            axes = np.maximum(np.diagonal(f.cov_xy, axis1=1, axis2=2), 0.0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                axes = axes * (sd**2 / np.maximum(axes.mean(axis=1), 1e-300))[:, None]
+            groups = infer_wires(xy, np.sqrt(axes), ok, loose, floor)
+            if groups is not None:
+                params["wires"] = "inferred"
+    if groups is not None and ok.sum() >= 2:
         tx, rx = groups
-        floor = float(loc.params["wire_scatter_mm"])
         # Sensors on one wire see largely the same touches, so the part of their error that
         # comes from where those touches landed moves them together: pooling the wire's
         # crossings averages only their own parts; the shared part stays in the error bar.
