@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from varskin.localization import localize, peakfit
+from varskin.localization import _statuses, localize
 from varskin.localization._wire_inference import infer_wires
 from varskin.patch import builtin_patch
 from varskin.simulate import simulate_session, uniform_grid
@@ -78,11 +78,11 @@ def main() -> int:
                 for seed in range(a, b):
                     s = simulate_session(patch, _points(patch, grid, seed), probe, seed)
                     seen = []
-                    peakfit.infer_wires = _spy(seen)
+                    _statuses.infer_wires = _spy(seen)
                     try:
                         localize(s.point_logs())
                     finally:
-                        peakfit.infer_wires = infer_wires
+                        _statuses.infer_wires = infer_wires
                     found = seen[-1]
                     if found is None:
                         count["declined"] += 1

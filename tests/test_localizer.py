@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from varskin.errors import InputError
-from varskin.localization import DEFAULT_METHOD, localize, paper, peakfit
+from varskin.localization import DEFAULT_METHOD, _hull, _statuses, localize, paper, peakfit
 from varskin.predictions import OK
 from varskin.scene import SceneParams
 from varskin.simulate import simulate_session, uniform_grid
@@ -412,7 +412,7 @@ def test_the_live_probe_hull_equals_the_hull_of_all_probes(patch_b):
                 assert eq is None
                 continue
             want = ConvexHull(np.unique(P, axis=0)).equations
-            got = peakfit._hull_distance(eq, xy)[0]
+            got = _hull.hull_distance(eq, xy)[0]
             np.testing.assert_allclose(
                 got, (xy @ want[:, :2].T + want[:, 2]).max(axis=1), atol=1e-9
             )
@@ -427,7 +427,7 @@ def test_wire_overlap_matches_its_definition():
     groups = np.array([0, 0, 0, 1, 1, 1, 1, 2, -1, 3, 3, 0])
     usable = np.ones(12, bool)
     usable[[2, 9]] = False  # wire 3 is left with one usable sensor
-    got = peakfit._mean_overlap(inside, groups, usable)
+    got = _statuses._mean_overlap(inside, groups, usable)
     want = np.ones(12)
     n = inside.sum(axis=0)
     for i in range(12):

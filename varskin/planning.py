@@ -30,9 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from varskin.localization.peakfit import R95_PER_AXIS_SD
 from varskin.patch import Patch
-from varskin.predictions import OK, Predictions
+from varskin.predictions import OK, R95_PER_AXIS_SD, Predictions
 
 UNIFORM = "uniform"
 COARSE = "coarse"

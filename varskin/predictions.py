@@ -16,6 +16,10 @@ from pathlib import Path
 import numpy as np
 
 OK = "ok"
+# sigma_mm is defined so that the circle of radius 2 sigma around the estimate holds the true
+# position with 95% probability for a 2-D Gaussian error of per-axis sd s:
+# r95 = s * sqrt(2 ln 20), so sigma_mm = s * sqrt(2 ln 20) / 2 (about 1.22 s).
+R95_PER_AXIS_SD = math.sqrt(2.0 * math.log(20.0))
 
 
 @dataclass(frozen=True)
@@ -23,9 +27,7 @@ class SensorEstimate:
     sensor: str
     x_mm: float | None
     y_mm: float | None
-    sigma_mm: float | None = (
-        None  # 1-sigma radial-per-axis uncertainty; None if the method has none
-    )
+    sigma_mm: float | None = None  # half the 95% error radius (R95_PER_AXIS_SD); None: none
     snr_db: float | None = None
     status: str = OK  # "ok" or one word: dead, saturated, flat, outside, ...
 

@@ -20,18 +20,23 @@ import numpy as np
 
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
+from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
-from varskin.localization._layout_prior import both_axes, shrink_to_layout
-from varskin.localization._wire_inference import infer_wires
+from varskin.localization._statuses import (
+    DEAD,
+    DRIFT_FRACTION,
+    DRIFTING,
+    UNCERTAIN,
+    drift_during_own_touches,
+    judge,
+    window_members,
+)
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
 from varskin.scene import ADC_MAX
 
 NAME = "peakfit"
-# sigma_mm is defined so that the circle of radius 2 sigma holds the true position with 95%
-# probability for a 2-D Gaussian error: r95 = s * sqrt(2 ln 20) for per-axis sd s.
-R95_PER_AXIS_SD = math.sqrt(2.0 * math.log(20.0))
 
 POLISH_ROUNDS = 4  # alternations of touch nuisances and sensor fits in a batch solve
 # Rounds of a batch solve per solver; a joint round also takes JOINT_STEPS joint steps.
@@ -79,24 +84,6 @@ DEFAULTS: dict = {
     "placement_sd_mm": None,
 }
 
-# Statuses (one word each; see docs/localizer.md)
-DEAD = "dead"  # no response above the noise
-SATURATED = "saturated"  # the sensor's readings sit at the ADC limit
-SPARSE = "sparse"  # too few usable touches near the sensor (or in total)
-COLLINEAR = "collinear"  # the probes lie on a line: one coordinate is unobservable
-OUTSIDE = "outside"  # the peak lies beyond the probed area: extrapolation refused
-UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_mm)
-# The peak fit failed its sanity checks (not converged, footprint out of range, wandered
-# from the map's top, residuals too large for a single peak): no position is reported. A
-# centroid fallback was tried and rejected: on such maps its error is unbounded.
-IRREGULAR = "irregular"
-WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
-# The sensor's offset moved by more than DRIFT_FRACTION of its peak during its own touches:
-# the floor model (a slow quadratic) cannot follow a settling that fast, and the part it
-# misses shifts the peak by up to ~2.7 mm with a sigma of ~0.5 mm (a weak sensor probed
-# first while the board settles). Re-probe near it once the offsets are steady.
-DRIFTING = "drifting"
-DRIFT_FRACTION = 0.5
 # A `drifting` sensor probed again after the probe was away for more than this many
 # touches' time is re-fitted from the touches since it came back (_refit_after_settling).
 REPROBE_AWAY_TOUCHES = 4
@@ -106,13 +93,8 @@ REPROBE_AWAY_TOUCHES = 4
 SECOND_PEAK_FRACTION = 0.6
 SEED_RADIUS_SPACINGS = 1.5
 SECOND_PEAK_RATIO = 1.5
-# Scale of the soft prior that a peak fitted beyond the probes' hull lies at its edge, in
-# units of the outside margin max(h, w)/2: 1.0 pulled a sensor truly 2.8 mm past a corner
-# 2 mm in; 2.0 left more of the last-column sensors runaway (fresh seeds 300-359).
-HULL_PRIOR = 1.5
 # Probes whose rms distance from their best line is below this lie on a line ("collinear").
 COLLINEAR_RMS_MM = 0.25
-WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
 @contextmanager
@@ -254,8 +236,7 @@ class Localizer:
         self._p_mean = np.zeros(2)
         self._p_scatter = np.zeros((2, 2))
         self._spacing_at: tuple[int, float] | None = None  # (log count, spacing there)
-        # The probes' hull as (logs it covers, its edges, its corners); see _probe_hull.
-        self._hull: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._hull = ProbeHull()
         # Per-touch nuisances shared by all sensors: log pressing gain and placement offset
         # (where the probe really landed minus where the log says), plus missed touches.
         self._lg = np.zeros(cap)
@@ -377,36 +358,14 @@ class Localizer:
 
     def _probe_hull(self) -> np.ndarray | None:
         """(E, 3) edges n.x + c <= 0 (n unit, outward) of the probes' convex hull; None
-        when the probes are (nearly) collinear.
-
-        Kept across live updates: new touches inside it leave it as it is, and new touches
-        outside it only need the hull of its corners and themselves (qhull over every
-        probe on every update cost more than all the statuses together).
-        """
-        K = self._k
+        when the probes are (nearly) collinear."""
         # Probes on (nearly) one line cannot tell the two sides of that line apart.
         if self._n_distinct < 3:
             return None
         small = np.linalg.eigvalsh(self._p_scatter)[0]
         if math.sqrt(max(small, 0.0) / self._n_distinct) < COLLINEAR_RMS_MM:
             return None
-        if self._hull is not None:
-            k0, eq, corners = self._hull
-            if k0 == K:
-                return eq
-            new = self._P[k0:K]
-            if (new @ eq[:, :2].T + eq[:, 2] <= 1e-9).all():
-                self._hull = (K, eq, corners)
-                return eq
-            corners, eq = _small_hull(np.vstack([corners, new]))
-            self._hull = (K, eq, corners)
-            return eq
-        from scipy.spatial import ConvexHull
-
-        pts = np.unique(self._P[:K], axis=0)
-        hull = ConvexHull(pts)
-        self._hull = (K, hull.equations, pts[hull.vertices])
-        return hull.equations
+        return self._hull.edges(self._P[: self._k])
 
     def _detect_sign(self) -> float:
         if self.params["inverted"] is not None:
@@ -815,9 +774,9 @@ class Localizer:
         f = self.fit
         h = self.spacing()
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
-        inside = _window_members(self, f.theta[:, :2], w, h)
+        inside = window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
-            drift = _drift_during_own_touches(self, inside)
+            drift = drift_during_own_touches(self, inside)
         cols = np.flatnonzero(f.fitted & np.isfinite(drift) & (drift > DRIFT_FRACTION))
         if cols.size == 0:
             return
@@ -870,7 +829,7 @@ class Localizer:
         # bump's other flank for a second peak.
         lw = f.theta[:, [pm.LW, pm.LWY]] if self.shared_lw is None else self.shared_lw[None, :]
         w = np.broadcast_to(np.exp(0.5 * lw.sum(axis=1)), (n,))
-        inside = _window_members(self, f.theta[:, :2], w, h)[:, cols]
+        inside = window_members(self, f.theta[:, :2], w, h)[:, cols]
         Dv = np.where(valid, D, -np.inf)
         top_in = np.where(inside, Dv, -np.inf).max(axis=0)
         out = np.where(inside, -np.inf, Dv)
@@ -1086,277 +1045,8 @@ def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
 
 
-def _small_hull(pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Corners and edges (n.x + c <= 0 inside, n unit and outward) of the convex hull of a
-    few points that are not all on one line.
-
-    A live update's hull is its old corners plus the new touch: a handful of points, for
-    which a monotone chain in plain Python is cheaper than setting up qhull. The caller
-    has ruled out collinear probes.
-    """
-    p = sorted(set(map(tuple, pts.tolist())))
-
-    def chain(seq):
-        out: list = []
-        for q in seq:
-            while len(out) >= 2:
-                (ax, ay), (bx, by) = out[-2], out[-1]
-                if (bx - ax) * (q[1] - ay) - (by - ay) * (q[0] - ax) > 0:
-                    break
-                out.pop()  # not a left turn: b is inside or on the edge a-q
-            out.append(q)
-        return out[:-1]
-
-    corners = np.array(chain(p) + chain(p[::-1]))  # counter-clockwise
-    edge = np.roll(corners, -1, axis=0) - corners
-    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.hypot(edge[:, 0], edge[:, 1])[:, None]
-    return corners, np.column_stack([normal, -(normal * corners).sum(axis=1)])
-
-
-def _hull_distance(eq: np.ndarray | None, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Signed distance (mm, >0 outside) of each xy from the hull with edges ``eq``, the
-    unit outward normal of the edge that distance is measured to, and collinear?"""
-    if eq is None:
-        return np.full(len(xy), np.inf), np.full((len(xy), 2), np.nan), True
-    with np.errstate(invalid="ignore"):
-        d = xy @ eq[:, :2].T + eq[:, 2]
-    j = np.argmax(np.where(np.isfinite(d), d, -np.inf), axis=1)
-    return d.max(axis=1), eq[j, :2], False
-
-
-def _pull_into_hull(
-    xy: np.ndarray, cov: np.ndarray, dist_out: np.ndarray, normal: np.ndarray, margin: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Soft prior that a peak fitted beyond the probes' hull lies near the hull's edge.
-
-    A sensor just past the last probe column shows only the inner flank of its bump, so the
-    fit can slide its peak outwards almost freely (Patch B's last TX wire: 0.5 mm beyond the
-    probes, fitted 4-7 mm beyond with a 5-13 mm sd). The prior is Gaussian in the distance
-    beyond the hull, centred on the edge with sd ``margin`` (footprint-scaled), combined
-    with the fit's own variance along the edge's normal; inside the hull it does nothing.
-    Returns the new xy, the per-axis variance and the fit's own sd along the normal.
-    """
-    with np.errstate(invalid="ignore"):
-        s2n = np.einsum("ni,nij,nj->n", normal, cov, normal)
-    trace = np.trace(cov, axis1=1, axis2=2)
-    use = np.isfinite(dist_out) & (dist_out > 0) & np.isfinite(s2n) & (s2n >= 0)
-    s2n = np.where(use, s2n, 0.0)
-    m2 = margin**2
-    keep = m2 / (m2 + s2n)  # the fraction of the outward distance the data keep
-    shift = np.where(use, dist_out * (1.0 - keep), 0.0)
-    xy = xy - np.where(use[:, None], normal, 0.0) * shift[:, None]
-    post = s2n * keep
-    var = np.maximum((trace - s2n + post) / 2.0, 0.0)
-    return xy, var, np.sqrt(s2n)
-
-
 def _predictions(loc: Localizer) -> Predictions:
-    n = len(loc.sensors)
-    f = loc.fit
-    K = loc.n_logs
-    params = {k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None}
-    params["n_logs"] = K
-    # The solver's own estimates of how the touches scattered (per axis, mm) and how their
-    # pressing gain varied (log sd): a diagnostic of the session (docs/localizer.md).
-    params["touch_placement_sd_mm"] = float(loc.place_sd_mm)
-    params["touch_gain_sd"] = float(loc.gain_sd)
-    status = np.array([OK] * n, dtype=object)
-    snr = _snr(loc)
-    if K < 3 or loc._n_distinct < 3:
-        status[:] = SPARSE
-        return _build(loc, status, np.zeros((n, 2)), np.zeros(n), snr, params)
-    th = f.theta
-    xy = th[:, :2].copy()
-    h = loc.spacing()
-    w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
-    margin = np.maximum(0.5 * h, 0.5 * w)
-    dist_out, normal, collinear = _hull_distance(loc._probe_hull(), xy)
-    # Judged on the fit itself: beyond the hull by more than the margin AND by more than
-    # 1.5 sd of the fit along the edge's normal. A one-sided fit that merely ran away (its
-    # sd along the normal dwarfs the distance) is not evidence of a peak outside; the hull
-    # prior then brings it back to where the data put it, with the sigma that implies.
-    xy, var, sd_out = _pull_into_hull(xy, f.cov_xy, dist_out, normal, HULL_PRIOR * margin)
-    outside = (dist_out > margin) & (dist_out > 1.5 * sd_out)
-    finite = np.isfinite(th).all(axis=1) & np.isfinite(var)
-    valid_counts = np.isfinite(loc._V[:K]).sum(axis=0)
-    snr_fit = th[:, pm.AMP] / np.maximum(f.noise, 1e-12)
-    weak_model = f.scale > 0.35 * np.maximum(th[:, pm.AMP], 1e-12)
-    # Per-axis sd: the fit's covariance (scaled by its residuals, so model mismatch counts)
-    # plus the touches' placement and gain scatter propagated through the fit.
-    sd = np.sqrt(var)
-    sd = np.hypot(sd, 0.002 * h)
-    moved = np.hypot(xy[:, 0] - f.start[:, 0], xy[:, 1] - f.start[:, 1])
-    sane = (
-        finite
-        & f.converged
-        & (f.n_eff >= 6.0)
-        & ~weak_model
-        & (moved <= np.maximum(2.0 * w, 2.0 * h))
-        & (w > 0.1 * h)
-        & (w < 20.0 * h)
-    )
-    at_fit = _window_members(loc, th[:, :2], w, h)
-    drift = _drift_during_own_touches(loc, at_fit)
-    # The first reason that holds, in this order (a sensor gets one status).
-    reasons = [
-        (~f.fitted | (valid_counts < 3), SPARSE),
-        (_rest_saturated(loc) | (K - f.n_clipped < 3), SATURATED),
-        (np.full(n, collinear), COLLINEAR),
-        (~finite | (snr_fit < loc.params["min_snr"]) | (th[:, pm.AMP] <= 0), DEAD),
-        (outside, OUTSIDE),
-        (~sane | loc._two_peaks, IRREGULAR),
-        (sd * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"], UNCERTAIN),
-    ]
-    for cond, reason in reversed(reasons):
-        status[cond] = reason
-    # A clipped sensor that could not be located from its unclipped flanks: clipping is why.
-    status[(status != OK) & (status != SPARSE) & (f.n_clipped > 0)] = SATURATED
-    # A "peak" far weaker than the other sensors' is a wire ridge or crosstalk, not the
-    # sensor's own peak (not probed near it yet, or a damaged sensor).
-    raw_amp = th[:, pm.AMP] * f.amp
-    ok = status == OK
-    if ok.sum() >= 3:
-        ref = WEAK_FRACTION * np.median(raw_amp[ok])
-        weak = ok & (raw_amp < ref)
-        status[weak] = WEAK
-    # Judged after `weak`: a sensor not yet probed near, whose "peak" is a wire ridge,
-    # says so first.
-    drifting = drift > DRIFT_FRACTION
-    status[(status == OK) & drifting] = DRIFTING
-    ok = status == OK
-    # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
-    # only one flank seen) but passed every other check may be placed by its wires.
-    loose = status == UNCERTAIN
-    floor = float(loc.params["wire_scatter_mm"])
-    # Where the layout prior's wires come from, also told to the user ("none": no clear
-    # grid in the fits).
-    groups, params["wires"] = loc.groups, "patch" if loc.params["patch"] is not None else "given"
-    if not loc.params["layout_prior"]:
-        groups, params["wires"] = None, "off"
-    elif groups is None:
-        params["wires"] = "none"
-        if loc.params["infer_wires"]:
-            # Inferred afresh every time, the live updates too: in a trial, wires kept from
-            # the last re-solve put a full board's last update up to 0.87 mm from the batch
-            # (0.08). Per axis: a sensor beyond the last probe column is loose along x only.
-            axes = np.maximum(np.diagonal(f.cov_xy, axis1=1, axis2=2), 0.0)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                axes = axes * (sd**2 / np.maximum(axes.mean(axis=1), 1e-300))[:, None]
-            groups = infer_wires(xy, np.sqrt(axes), ok, loose, floor)
-            if groups is not None:
-                params["wires"] = "inferred"
-    if groups is not None and ok.sum() >= 2:
-        tx, rx = groups
-        # Sensors on one wire see largely the same touches, so the part of their error that
-        # comes from where those touches landed moves them together: pooling the wire's
-        # crossings averages only their own parts; the shared part stays in the error bar.
-        # How much they share is how many touches their fit windows have in common.
-        touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
-        # The windows at the reported positions: those at the fits, except for the sensors
-        # the hull prior moved (a full board's live update cannot afford a second pass).
-        inside = at_fit.copy()
-        moved = np.flatnonzero((xy != th[:, :2]).any(axis=1))
-        if moved.size:
-            inside[:, moved] = _window_members(loc, xy[moved], w[moved], h, moved)
-        use = ok | loose  # a loose sensor informs its wire's line only with its own weight
-        # Both wire families in one call: a live update runs this.
-        overlap = _mean_overlap(
-            np.hstack([inside, inside]), both_axes(tx, rx), np.concatenate([use, use])
-        )
-        shared_x = touch_part * overlap[: len(use)]
-        shared_y = touch_part * overlap[len(use) :]
-        xy, vx, vy = shrink_to_layout(
-            xy, sd**2, tx, rx, use, floor, (shared_x, shared_y), loc.design
-        )
-        sd = np.where(use, np.sqrt((vx + vy) / 2.0), sd)
-        # Judged again after the prior: placed within max_sigma_mm and not weak, it is ok.
-        placed = loose & ~drifting & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
-        if ok.sum() >= 3:
-            placed &= raw_amp >= WEAK_FRACTION * np.median(raw_amp[ok])
-        status[placed] = OK
-    sigma = sd * R95_PER_AXIS_SD / 2.0
-    return _build(loc, status, xy, sigma, snr, params)
-
-
-def _drift_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
-    """(N,) how far each sensor's fitted floor moves across the touches in its own fit
-    window (``inside``, (K, N) from ``_window_members`` at the fitted peaks), in units of
-    its fitted peak height (inf where there is no peak)."""
-    f = loc.fit
-    tau = loc._tau()[:, None] - f.tc[None, :]
-    fl = pm.floor(tau, f.theta)
-    hi = np.where(inside, fl, -np.inf).max(axis=0)
-    lo = np.where(inside, fl, np.inf).min(axis=0)
-    span = np.where(inside.any(axis=0), hi - lo, 0.0)
-    amp = f.theta[:, pm.AMP]
-    with np.errstate(all="ignore"):
-        return np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
-
-
-def _window_members(
-    loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float, cols: np.ndarray | None = None
-) -> np.ndarray:
-    """(K, N) bool: the touches inside each sensor's fit window (``cols``: which sensors
-    ``xy`` and ``w`` are, if not all)."""
-    s = loc.settings
-    radius = np.maximum(s.window_widths * w, s.window_spacings * h)
-    P = loc._P[: loc.n_logs] + loc._dxy[: loc.n_logs]
-    dx = P[:, 0:1] - xy[None, :, 0]
-    dy = P[:, 1:2] - xy[None, :, 1]
-    inside = dx * dx + dy * dy <= (radius * radius)[None, :]
-    t_from = loc._t_from if cols is None else loc._t_from[cols]
-    if np.isfinite(t_from).any():  # re-fitted after settling: only the later touches
-        inside &= loc._tau()[:, None] >= t_from[None, :]
-    return inside
-
-
-def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) -> np.ndarray:
-    """(N,) for each sensor, the mean fraction of touches it shares with its usable
-    wire-mates (|A and B| / sqrt(|A| |B|)); 1 where it has none (nothing to average)."""
-    n = inside.shape[1]
-    out = np.ones(n)
-    gids = np.unique(groups[groups >= 0])
-    member = (groups[None, :] == gids[:, None]) & usable[None, :]  # (G, N)
-    member &= (member.sum(axis=1) >= 2)[:, None]
-    if not member.any():
-        return out
-    # Every wire at once, padded to (G, M) like the layout prior: a live update calls
-    # this every touch.
-    M = int(member.sum(axis=1).max())
-    order = np.argsort(~member, axis=1, kind="stable")[:, :M]
-    mask = np.take_along_axis(member, order, axis=1)
-    A = (inside[:, order] & mask[None]).astype(float).transpose(1, 2, 0)  # (G, M, K)
-    common = A @ A.transpose(0, 2, 1)
-    counts = inside.sum(axis=0).astype(float)[order]
-    norm = np.sqrt(counts[:, :, None] * counts[:, None, :])
-    frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
-    mates = mask[:, :, None] & mask[:, None, :] & ~np.eye(M, dtype=bool)[None]
-    mean = (frac * mates).sum(axis=2) / np.maximum(mates.sum(axis=2), 1)
-    out[order[mask]] = mean[mask]
-    return out
-
-
-def _rest_saturated(loc: Localizer) -> np.ndarray:
-    """(N,) sensors whose no-contact reading already sits at the ADC limit."""
-    n = len(loc.sensors)
-    if loc.rest is None or not loc._raw_counts():
-        return np.zeros(n, bool)
-    sd = loc.rest_sd if loc.rest_sd is not None else np.ones(n)
-    margin = np.maximum(3.0 * np.where(np.isfinite(sd), sd, 1.0), 1.0)
-    with np.errstate(invalid="ignore"):
-        return (loc.rest >= ADC_MAX - margin) | (loc.rest <= margin)
-
-
-def _snr(loc: Localizer) -> np.ndarray:
-    """SNR_i = 20 log10((max_k mean S_ik - S_i0) / sigma_i0), the paper's equation."""
-    n = len(loc.sensors)
-    out = np.full(n, np.nan)
-    if loc.rest_sd is None or loc.n_logs == 0:
-        return out
-    with np.errstate(all="ignore"):
-        peak = np.nanmax(loc._V[: loc.n_logs] * loc._sign, axis=0)
-        out = 20.0 * np.log10(peak / loc.rest_sd)
-    return out
+    return _build(loc, *judge(loc))
 
 
 def _build(loc, status, xy, sigma, snr, params) -> Predictions:

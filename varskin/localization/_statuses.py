@@ -1,0 +1,257 @@
+"""From the fits to what the user gets: each sensor's status, position and sigma.
+
+Why a module of its own: the solver (peakfit.py) fits a peak to every sensor's map; whether
+that fit is a position worth reporting is a separate set of judgements, made in one place
+and in a fixed order: too few touches, clipped, collinear probes, dead, beyond the probes'
+hull, a fit that failed its sanity checks, too loose; then weak and drifting. The hull
+prior and the wires' layout prior move the positions and set the error bars here too,
+because they decide which loose fits may still be placed. docs/localizer.md lists the
+statuses.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from varskin.localization import _peak_model as pm
+from varskin.localization._hull import HULL_PRIOR, hull_distance, pull_into_hull
+from varskin.localization._layout_prior import both_axes, shrink_to_layout
+from varskin.localization._wire_inference import infer_wires
+from varskin.predictions import OK, R95_PER_AXIS_SD
+from varskin.scene import ADC_MAX
+
+if TYPE_CHECKING:
+    from varskin.localization.peakfit import Localizer
+
+# Statuses (one word each; see docs/localizer.md)
+DEAD = "dead"  # no response above the noise
+SATURATED = "saturated"  # the sensor's readings sit at the ADC limit
+SPARSE = "sparse"  # too few usable touches near the sensor (or in total)
+COLLINEAR = "collinear"  # the probes lie on a line: one coordinate is unobservable
+OUTSIDE = "outside"  # the peak lies beyond the probed area: extrapolation refused
+UNCERTAIN = "uncertain"  # the fit is too loose to trust (sigma above max_sigma_mm)
+# The peak fit failed its sanity checks (not converged, footprint out of range, wandered
+# from the map's top, residuals too large for a single peak): no position is reported. A
+# centroid fallback was tried and rejected: on such maps its error is unbounded.
+IRREGULAR = "irregular"
+WEAK = "weak"  # peak far below the other sensors': not probed near it, or damaged
+# The sensor's offset moved by more than DRIFT_FRACTION of its peak during its own touches:
+# the floor model (a slow quadratic) cannot follow a settling that fast, and the part it
+# misses shifts the peak by up to ~2.7 mm with a sigma of ~0.5 mm (a weak sensor probed
+# first while the board settles). Re-probe near it once the offsets are steady.
+DRIFTING = "drifting"
+DRIFT_FRACTION = 0.5
+WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
+
+
+def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Every sensor's status, position (N, 2), sigma (N,) and SNR (N,), and the result's
+    params, from ``loc``'s last solve."""
+    n = len(loc.sensors)
+    f = loc.fit
+    K = loc.n_logs
+    params = {k: v for k, v in loc.params.items() if k not in ("patch", "wires") and v is not None}
+    params["n_logs"] = K
+    # The solver's own estimates of how the touches scattered (per axis, mm) and how their
+    # pressing gain varied (log sd): a diagnostic of the session (docs/localizer.md).
+    params["touch_placement_sd_mm"] = float(loc.place_sd_mm)
+    params["touch_gain_sd"] = float(loc.gain_sd)
+    status = np.array([OK] * n, dtype=object)
+    snr = _snr(loc)
+    if K < 3 or loc._n_distinct < 3:
+        status[:] = SPARSE
+        return status, np.zeros((n, 2)), np.zeros(n), snr, params
+    th = f.theta
+    xy = th[:, :2].copy()
+    h = loc.spacing()
+    w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
+    margin = np.maximum(0.5 * h, 0.5 * w)
+    dist_out, normal, collinear = hull_distance(loc._probe_hull(), xy)
+    # Judged on the fit itself: beyond the hull by more than the margin AND by more than
+    # 1.5 sd of the fit along the edge's normal. A one-sided fit that merely ran away (its
+    # sd along the normal dwarfs the distance) is not evidence of a peak outside; the hull
+    # prior then brings it back to where the data put it, with the sigma that implies.
+    xy, var, sd_out = pull_into_hull(xy, f.cov_xy, dist_out, normal, HULL_PRIOR * margin)
+    outside = (dist_out > margin) & (dist_out > 1.5 * sd_out)
+    finite = np.isfinite(th).all(axis=1) & np.isfinite(var)
+    valid_counts = np.isfinite(loc._V[:K]).sum(axis=0)
+    snr_fit = th[:, pm.AMP] / np.maximum(f.noise, 1e-12)
+    weak_model = f.scale > 0.35 * np.maximum(th[:, pm.AMP], 1e-12)
+    # Per-axis sd: the fit's covariance (scaled by its residuals, so model mismatch counts)
+    # plus the touches' placement and gain scatter propagated through the fit.
+    sd = np.sqrt(var)
+    sd = np.hypot(sd, 0.002 * h)
+    moved = np.hypot(xy[:, 0] - f.start[:, 0], xy[:, 1] - f.start[:, 1])
+    sane = (
+        finite
+        & f.converged
+        & (f.n_eff >= 6.0)
+        & ~weak_model
+        & (moved <= np.maximum(2.0 * w, 2.0 * h))
+        & (w > 0.1 * h)
+        & (w < 20.0 * h)
+    )
+    at_fit = window_members(loc, th[:, :2], w, h)
+    drift = drift_during_own_touches(loc, at_fit)
+    # The first reason that holds, in this order (a sensor gets one status).
+    reasons = [
+        (~f.fitted | (valid_counts < 3), SPARSE),
+        (_rest_saturated(loc) | (K - f.n_clipped < 3), SATURATED),
+        (np.full(n, collinear), COLLINEAR),
+        (~finite | (snr_fit < loc.params["min_snr"]) | (th[:, pm.AMP] <= 0), DEAD),
+        (outside, OUTSIDE),
+        (~sane | loc._two_peaks, IRREGULAR),
+        (sd * R95_PER_AXIS_SD / 2.0 > loc.params["max_sigma_mm"], UNCERTAIN),
+    ]
+    for cond, reason in reversed(reasons):
+        status[cond] = reason
+    # A clipped sensor that could not be located from its unclipped flanks: clipping is why.
+    status[(status != OK) & (status != SPARSE) & (f.n_clipped > 0)] = SATURATED
+    # A "peak" far weaker than the other sensors' is a wire ridge or crosstalk, not the
+    # sensor's own peak (not probed near it yet, or a damaged sensor).
+    raw_amp = th[:, pm.AMP] * f.amp
+    ok = status == OK
+    if ok.sum() >= 3:
+        ref = WEAK_FRACTION * np.median(raw_amp[ok])
+        weak = ok & (raw_amp < ref)
+        status[weak] = WEAK
+    # Judged after `weak`: a sensor not yet probed near, whose "peak" is a wire ridge,
+    # says so first.
+    drifting = drift > DRIFT_FRACTION
+    status[(status == OK) & drifting] = DRIFTING
+    ok = status == OK
+    # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
+    # only one flank seen) but passed every other check may be placed by its wires.
+    loose = status == UNCERTAIN
+    floor = float(loc.params["wire_scatter_mm"])
+    # Where the layout prior's wires come from, also told to the user ("none": no clear
+    # grid in the fits).
+    groups, params["wires"] = loc.groups, "patch" if loc.params["patch"] is not None else "given"
+    if not loc.params["layout_prior"]:
+        groups, params["wires"] = None, "off"
+    elif groups is None:
+        params["wires"] = "none"
+        if loc.params["infer_wires"]:
+            # Inferred afresh every time, the live updates too: in a trial, wires kept from
+            # the last re-solve put a full board's last update up to 0.87 mm from the batch
+            # (0.08). Per axis: a sensor beyond the last probe column is loose along x only.
+            axes = np.maximum(np.diagonal(f.cov_xy, axis1=1, axis2=2), 0.0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                axes = axes * (sd**2 / np.maximum(axes.mean(axis=1), 1e-300))[:, None]
+            groups = infer_wires(xy, np.sqrt(axes), ok, loose, floor)
+            if groups is not None:
+                params["wires"] = "inferred"
+    if groups is not None and ok.sum() >= 2:
+        tx, rx = groups
+        # Sensors on one wire see largely the same touches, so the part of their error that
+        # comes from where those touches landed moves them together: pooling the wire's
+        # crossings averages only their own parts; the shared part stays in the error bar.
+        # How much they share is how many touches their fit windows have in common.
+        touch_part = np.clip(np.nan_to_num(f.var_touch), 0.0, sd**2)
+        # The windows at the reported positions: those at the fits, except for the sensors
+        # the hull prior moved (a full board's live update cannot afford a second pass).
+        inside = at_fit.copy()
+        moved = np.flatnonzero((xy != th[:, :2]).any(axis=1))
+        if moved.size:
+            inside[:, moved] = window_members(loc, xy[moved], w[moved], h, moved)
+        use = ok | loose  # a loose sensor informs its wire's line only with its own weight
+        # Both wire families in one call: a live update runs this.
+        overlap = _mean_overlap(
+            np.hstack([inside, inside]), both_axes(tx, rx), np.concatenate([use, use])
+        )
+        shared_x = touch_part * overlap[: len(use)]
+        shared_y = touch_part * overlap[len(use) :]
+        xy, vx, vy = shrink_to_layout(
+            xy, sd**2, tx, rx, use, floor, (shared_x, shared_y), loc.design
+        )
+        sd = np.where(use, np.sqrt((vx + vy) / 2.0), sd)
+        # Judged again after the prior: placed within max_sigma_mm and not weak, it is ok.
+        placed = loose & ~drifting & (sd * R95_PER_AXIS_SD / 2.0 <= loc.params["max_sigma_mm"])
+        if ok.sum() >= 3:
+            placed &= raw_amp >= WEAK_FRACTION * np.median(raw_amp[ok])
+        status[placed] = OK
+    sigma = sd * R95_PER_AXIS_SD / 2.0
+    return status, xy, sigma, snr, params
+
+
+def drift_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
+    """(N,) how far each sensor's fitted floor moves across the touches in its own fit
+    window (``inside``, (K, N) from ``window_members`` at the fitted peaks), in units of
+    its fitted peak height (inf where there is no peak)."""
+    f = loc.fit
+    tau = loc._tau()[:, None] - f.tc[None, :]
+    fl = pm.floor(tau, f.theta)
+    hi = np.where(inside, fl, -np.inf).max(axis=0)
+    lo = np.where(inside, fl, np.inf).min(axis=0)
+    span = np.where(inside.any(axis=0), hi - lo, 0.0)
+    amp = f.theta[:, pm.AMP]
+    with np.errstate(all="ignore"):
+        return np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
+
+
+def window_members(
+    loc: Localizer, xy: np.ndarray, w: np.ndarray, h: float, cols: np.ndarray | None = None
+) -> np.ndarray:
+    """(K, N) bool: the touches inside each sensor's fit window (``cols``: which sensors
+    ``xy`` and ``w`` are, if not all)."""
+    s = loc.settings
+    radius = np.maximum(s.window_widths * w, s.window_spacings * h)
+    P = loc._P[: loc.n_logs] + loc._dxy[: loc.n_logs]
+    dx = P[:, 0:1] - xy[None, :, 0]
+    dy = P[:, 1:2] - xy[None, :, 1]
+    inside = dx * dx + dy * dy <= (radius * radius)[None, :]
+    t_from = loc._t_from if cols is None else loc._t_from[cols]
+    if np.isfinite(t_from).any():  # re-fitted after settling: only the later touches
+        inside &= loc._tau()[:, None] >= t_from[None, :]
+    return inside
+
+
+def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(N,) for each sensor, the mean fraction of touches it shares with its usable
+    wire-mates (|A and B| / sqrt(|A| |B|)); 1 where it has none (nothing to average)."""
+    n = inside.shape[1]
+    out = np.ones(n)
+    gids = np.unique(groups[groups >= 0])
+    member = (groups[None, :] == gids[:, None]) & usable[None, :]  # (G, N)
+    member &= (member.sum(axis=1) >= 2)[:, None]
+    if not member.any():
+        return out
+    # Every wire at once, padded to (G, M) like the layout prior: a live update calls
+    # this every touch.
+    M = int(member.sum(axis=1).max())
+    order = np.argsort(~member, axis=1, kind="stable")[:, :M]
+    mask = np.take_along_axis(member, order, axis=1)
+    A = (inside[:, order] & mask[None]).astype(float).transpose(1, 2, 0)  # (G, M, K)
+    common = A @ A.transpose(0, 2, 1)
+    counts = inside.sum(axis=0).astype(float)[order]
+    norm = np.sqrt(counts[:, :, None] * counts[:, None, :])
+    frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
+    mates = mask[:, :, None] & mask[:, None, :] & ~np.eye(M, dtype=bool)[None]
+    mean = (frac * mates).sum(axis=2) / np.maximum(mates.sum(axis=2), 1)
+    out[order[mask]] = mean[mask]
+    return out
+
+
+def _rest_saturated(loc: Localizer) -> np.ndarray:
+    """(N,) sensors whose no-contact reading already sits at the ADC limit."""
+    n = len(loc.sensors)
+    if loc.rest is None or not loc._raw_counts():
+        return np.zeros(n, bool)
+    sd = loc.rest_sd if loc.rest_sd is not None else np.ones(n)
+    margin = np.maximum(3.0 * np.where(np.isfinite(sd), sd, 1.0), 1.0)
+    with np.errstate(invalid="ignore"):
+        return (loc.rest >= ADC_MAX - margin) | (loc.rest <= margin)
+
+
+def _snr(loc: Localizer) -> np.ndarray:
+    """SNR_i = 20 log10((max_k mean S_ik - S_i0) / sigma_i0), the paper's equation."""
+    n = len(loc.sensors)
+    out = np.full(n, np.nan)
+    if loc.rest_sd is None or loc.n_logs == 0:
+        return out
+    with np.errstate(all="ignore"):
+        peak = np.nanmax(loc._V[: loc.n_logs] * loc._sign, axis=0)
+        out = 20.0 * np.log10(peak / loc.rest_sd)
+    return out
