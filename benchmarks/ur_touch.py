@@ -30,8 +30,9 @@ import numpy as np
 from robot.arm import TouchSpec
 from robot.rig_time import estimate_plan_time
 from robot.safety import Envelope
-from robot.sim_controller import CMD_FORCE_MODE_STOP, SimRig, SimulatedController
+from robot.sim_controller import SimRig, SimulatedController
 from robot.ur import URArm
+from robot.ur_wire import CMD_FORCE_MODE_STOP
 from varskin.patch import builtin_patch
 
 

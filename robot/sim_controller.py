@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from robot import ur_wire as wire
 from robot.patch_frame import PatchFrame
 from varskin.scene import ProbeState
 
@@ -73,149 +74,6 @@ SINK_PORTS = (30001, 30002)
 # Shortest wall tick of a time-scaled controller: Python's sleep and the GIL make shorter
 # ticks jittery and CPU-hungry on a 2-core CI machine.
 MIN_TICK_S = 0.001
-
-CONTROLLER_VERSION = (5, 11, 1, 108318)
-POLYSCOPE_VERSION = "URSoftware 5.11.1.108318 (Nov 11 2021)"
-
-# RTDE packet types (ASCII codes)
-V_REQUEST_PROTOCOL = ord("V")
-V_GET_URCONTROL_VERSION = ord("v")
-V_TEXT_MESSAGE = ord("M")
-V_DATA_PACKAGE = ord("U")
-V_SETUP_OUTPUTS = ord("O")
-V_SETUP_INPUTS = ord("I")
-V_START = ord("S")
-V_PAUSE = ord("P")
-
-# Command ids of ur-rtde 1.6.5's control script (RTDE::RobotCommand::Type)
-CMD_NONE = 0
-CMD_MOVEJ = 1
-CMD_MOVEL = 3
-CMD_FORCE_MODE = 6
-CMD_FORCE_MODE_STOP = 7
-CMD_ZERO_FT_SENSOR = 8
-CMD_SET_PAYLOAD = 17
-CMD_SET_DAMPING = 20
-CMD_SET_GAIN_SCALING = 21
-CMD_SET_TCP = 29
-CMD_PROTECTIVE_STOP = 31
-CMD_STOPL = 33
-CMD_STOPJ = 34
-CMD_START_CONTACT_DETECTION = 62
-CMD_STOP_CONTACT_DETECTION = 63
-CMD_READ_CONTACT_DETECTION = 64
-CMD_STOP_SCRIPT = 255
-# commands the script processes and acknowledges with "ready" instead of "done"
-REALTIME_CMDS = {24, 11, 9, 10, 6, 25, 26, 27, 38, 58, 66, 67, 68, 69, 70, 71}
-
-UR_READY = 1
-UR_DONE = 2
-
-# robot_status_bits, safety_status_bits, safety_mode and runtime_state values (UR RTDE guide)
-STATUS_POWER_ON = 1 << 0
-STATUS_PROGRAM_RUNNING = 1 << 1
-SAFETY_BIT_NORMAL = 1 << 0
-SAFETY_BIT_PROTECTIVE_STOP = 1 << 2
-SAFETY_MODE_NORMAL = 1
-SAFETY_MODE_PROTECTIVE_STOP = 3
-RUNTIME_STOPPED = 1
-RUNTIME_PLAYING = 2
-ROBOT_MODE_RUNNING = 7
-
-_VECTOR6D = ("VECTOR6D", ">6d")
-_VECTOR3D = ("VECTOR3D", ">3d")
-_DOUBLE = ("DOUBLE", ">d")
-_INT32 = ("INT32", ">i")
-_UINT32 = ("UINT32", ">I")
-_UINT64 = ("UINT64", ">Q")
-_UINT8 = ("UINT8", ">B")
-_BOOL = ("BOOL", ">?")
-_VECTOR6INT32 = ("VECTOR6INT32", ">6i")
-_VECTOR6UINT32 = ("VECTOR6UINT32", ">6I")
-
-_FIXED_TYPES: dict[str, tuple[str, str]] = {
-    "timestamp": _DOUBLE,
-    "actual_execution_time": _DOUBLE,
-    "robot_mode": _INT32,
-    "joint_mode": _VECTOR6INT32,
-    "safety_mode": _INT32,
-    "safety_status": _INT32,
-    "runtime_state": _UINT32,
-    "robot_status_bits": _UINT32,
-    "safety_status_bits": _UINT32,
-    "actual_digital_input_bits": _UINT64,
-    "actual_digital_output_bits": _UINT64,
-    "speed_scaling": _DOUBLE,
-    "target_speed_fraction": _DOUBLE,
-    "actual_momentum": _DOUBLE,
-    "actual_main_voltage": _DOUBLE,
-    "actual_robot_voltage": _DOUBLE,
-    "actual_robot_current": _DOUBLE,
-    "actual_tool_accelerometer": _VECTOR3D,
-    "elbow_position": _VECTOR3D,
-    "elbow_velocity": _VECTOR3D,
-    "payload_cog": _VECTOR3D,
-    "payload": _DOUBLE,
-    "analog_io_types": _UINT32,
-    "standard_analog_input0": _DOUBLE,
-    "standard_analog_input1": _DOUBLE,
-    "standard_analog_output0": _DOUBLE,
-    "standard_analog_output1": _DOUBLE,
-    "io_current": _DOUBLE,
-    "tool_mode": _UINT32,
-    "tool_analog_input_types": _UINT32,
-    "tool_analog_input0": _DOUBLE,
-    "tool_analog_input1": _DOUBLE,
-    "tool_output_voltage": _INT32,
-    "tool_output_current": _DOUBLE,
-    "tool_temperature": _DOUBLE,
-    "tcp_force_scalar": _DOUBLE,
-    "output_bit_registers0_to_31": _UINT32,
-    "output_bit_registers32_to_63": _UINT32,
-    "input_bit_registers0_to_31": _UINT32,
-    "input_bit_registers32_to_63": _UINT32,
-    "script_control_line": _UINT32,
-    "joint_position_deviation_ratio": _DOUBLE,
-    "collision_detection_ratio": _DOUBLE,
-    "time_scale_source": _INT32,
-    "standard_digital_output_mask": _UINT8,
-    "standard_digital_output": _UINT8,
-    "configurable_digital_output_mask": _UINT8,
-    "configurable_digital_output": _UINT8,
-    "tool_digital_output_mask": _UINT8,
-    "tool_digital_output": _UINT8,
-    "standard_analog_output_mask": _UINT8,
-    "standard_analog_output_type": _UINT8,
-    "standard_analog_output_0": _DOUBLE,
-    "standard_analog_output_1": _DOUBLE,
-    "speed_slider_mask": _UINT32,
-    "speed_slider_fraction": _DOUBLE,
-    "tool_output_mode": _UINT8,
-    "tool_digital_output0_mode": _UINT8,
-    "tool_digital_output1_mode": _UINT8,
-    "euromap67_input_bits": _UINT32,
-    "euromap67_output_bits": _UINT32,
-    "euromap67_24V_voltage": _DOUBLE,
-    "euromap67_24V_current": _DOUBLE,
-}
-_VECTOR6D_NAMES = {
-    "target_q", "target_qd", "target_qdd", "target_current", "target_moment", "actual_q", "actual_qd",
-    "actual_current", "joint_control_output", "actual_TCP_pose", "actual_TCP_speed", "actual_TCP_force",
-    "target_TCP_pose", "target_TCP_speed", "joint_temperatures", "actual_joint_voltage", "payload_inertia",
-    "ft_raw_wrench", "tcp_offset", "actual_current_as_torque", "actual_current_window", "target_current_window",
-}  # fmt: skip
-
-
-def rtde_type(name: str) -> tuple[str, str] | None:
-    """The RTDE type (name, struct format) of a variable, None if this controller lacks it."""
-    if name in _FIXED_TYPES:
-        return _FIXED_TYPES[name]
-    if name in _VECTOR6D_NAMES:
-        return _VECTOR6D
-    m = re.fullmatch(r"(input|output)_(int|double|bit)_register_(\d+)", name)
-    if m and int(m.group(3)) < (128 if m.group(2) == "bit" else 48):
-        return {"int": _INT32, "double": _DOUBLE, "bit": _BOOL}[m.group(2)]
-    return None
 
 
 @dataclass
@@ -519,21 +377,21 @@ class _ControllerCore:
         if self._busy is not None:
             if self._busy_finished():
                 self._busy = None
-                self._out_int[0] = UR_DONE
+                self._out_int[0] = wire.UR_DONE
             return
         cmd = self._in_int.get(0, 0)
-        if cmd == CMD_NONE:
+        if cmd == wire.CMD_NONE:
             self._executing_cmd = False
-            self._out_int[0] = UR_READY
-        elif cmd in REALTIME_CMDS:
+            self._out_int[0] = wire.UR_READY
+        elif cmd in wire.REALTIME_CMDS:
             self._process(cmd)
-            self._out_int[0] = UR_READY
+            self._out_int[0] = wire.UR_READY
         elif not self._executing_cmd:
             self._executing_cmd = True
             self.commands.append((self._sim_t, cmd))
             self._process(cmd)
             if self._busy is None and self._script_running:
-                self._out_int[0] = UR_DONE
+                self._out_int[0] = wire.UR_DONE
 
     def _busy_finished(self) -> bool:
         if self._busy == "move":
@@ -547,13 +405,13 @@ class _ControllerCore:
 
     def _process(self, cmd: int) -> None:
         d = self._in_double
-        if cmd == CMD_MOVEL:
+        if cmd == wire.CMD_MOVEL:
             target = self._pose_arg(0)
             speed, accel = d.get(6, 0.25), d.get(7, 1.2)
             self._start_move(target, speed, accel)
             if self._in_int.get(1, 0) == 0:  # synchronous: done when the move ends
                 self._busy = "move"
-        elif cmd == CMD_FORCE_MODE:
+        elif cmd == wire.CMD_FORCE_MODE:
             frame = self._pose_arg(0)
             self._force_mode = {
                 "type": self._in_int.get(1, 2),
@@ -564,39 +422,39 @@ class _ControllerCore:
             }
             self._motion = None
             self._stopping_decel = None
-        elif cmd == CMD_FORCE_MODE_STOP:
+        elif cmd == wire.CMD_FORCE_MODE_STOP:
             self._force_mode = None
             self._motion = None
             self._stop_motion(10.0)
             self._busy = "stop"
-        elif cmd == CMD_ZERO_FT_SENSOR:
+        elif cmd == wire.CMD_ZERO_FT_SENSOR:
             self._ft_bias = self._raw_wrench()
-        elif cmd == CMD_SET_PAYLOAD:
+        elif cmd == wire.CMD_SET_PAYLOAD:
             self.payload_kg = float(d.get(0, 0.0))
             self.payload_cog = tuple(float(d.get(1 + i, 0.0)) for i in range(3))
-        elif cmd == CMD_SET_TCP:
+        elif cmd == wire.CMD_SET_TCP:
             self.tcp_offset = tuple(float(v) for v in self._pose_arg(0))
-        elif cmd == CMD_SET_DAMPING:
+        elif cmd == wire.CMD_SET_DAMPING:
             self._damping = min(max(d.get(0, 0.025), 0.0), 1.0)
-        elif cmd == CMD_SET_GAIN_SCALING:
+        elif cmd == wire.CMD_SET_GAIN_SCALING:
             self._gain_scaling = min(max(d.get(0, 0.5), 0.0), 2.0)
-        elif cmd in (CMD_STOPL, CMD_STOPJ):
+        elif cmd in (wire.CMD_STOPL, wire.CMD_STOPJ):
             self._stop_motion(d.get(0, 10.0))
             self._busy = "stop"
-        elif cmd == CMD_START_CONTACT_DETECTION:
+        elif cmd == wire.CMD_START_CONTACT_DETECTION:
             direction = self._pose_arg(0)[:3]
             n = float(np.linalg.norm(direction))
             self._contact = {"direction": direction / n if n > 0 else np.array([0.0, 0.0, -1.0])}
             self._contact_detected = False
             self._out_int[1] = 0
-        elif cmd == CMD_READ_CONTACT_DETECTION:
+        elif cmd == wire.CMD_READ_CONTACT_DETECTION:
             self._out_int[1] = 1 if self._contact_detected else 0
-        elif cmd == CMD_STOP_CONTACT_DETECTION:
+        elif cmd == wire.CMD_STOP_CONTACT_DETECTION:
             self._out_int[1] = 1 if self._contact_detected else 0
             self._contact = None
-        elif cmd == CMD_PROTECTIVE_STOP:
+        elif cmd == wire.CMD_PROTECTIVE_STOP:
             self._enter_protective_stop()
-        elif cmd == CMD_STOP_SCRIPT:
+        elif cmd == wire.CMD_STOP_SCRIPT:
             self._end_script()
         else:
             log.debug("simulated controller: command %d acknowledged without effect", cmd)
@@ -800,14 +658,14 @@ class _ControllerCore:
             payload = self._recv_exact(conn, size - 3)
             if self._silent():
                 continue
-            if ptype == V_REQUEST_PROTOCOL:
+            if ptype == wire.V_REQUEST_PROTOCOL:
                 send(ptype, struct.pack(">B", 1))
-            elif ptype == V_GET_URCONTROL_VERSION:
-                send(ptype, struct.pack(">IIII", *CONTROLLER_VERSION))
-            elif ptype == V_SETUP_OUTPUTS:
+            elif ptype == wire.V_GET_URCONTROL_VERSION:
+                send(ptype, struct.pack(">IIII", *wire.CONTROLLER_VERSION))
+            elif ptype == wire.V_SETUP_OUTPUTS:
                 freq = struct.unpack(">d", payload[:8])[0]
                 names = [n for n in payload[8:].decode().split(",") if n]
-                types = [rtde_type(n) for n in names]
+                types = [wire.rtde_type(n) for n in names]
                 ok = all(t is not None for t in types)
                 outputs.update(
                     names=names,
@@ -817,16 +675,16 @@ class _ControllerCore:
                 )
                 reply = ",".join(t[0] if t else "NOT_FOUND" for t in types).encode()
                 send(ptype, struct.pack(">B", outputs["recipe"]) + reply)
-            elif ptype == V_SETUP_INPUTS:
+            elif ptype == wire.V_SETUP_INPUTS:
                 names = [n for n in payload.decode().split(",") if n]
-                types = [rtde_type(n) for n in names]
+                types = [wire.rtde_type(n) for n in names]
                 ok = all(t is not None for t in types)
                 rid = len(inputs) + 1 if ok else 0
                 if ok:
                     inputs[rid] = list(zip(names, types, strict=True))
                 reply = ",".join(t[0] if t else "NOT_FOUND" for t in types).encode()
                 send(ptype, struct.pack(">B", rid) + reply)
-            elif ptype == V_START:
+            elif ptype == wire.V_START:
                 send(ptype, struct.pack(">B", 1))
                 if not started.is_set():
                     started.set()
@@ -838,12 +696,12 @@ class _ControllerCore:
                     )
                     t.start()
                     publisher.append(t)
-            elif ptype == V_PAUSE:
+            elif ptype == wire.V_PAUSE:
                 started.clear()
                 send(ptype, struct.pack(">B", 1))
-            elif ptype == V_DATA_PACKAGE:
+            elif ptype == wire.V_DATA_PACKAGE:
                 self._apply_inputs(payload, inputs)
-            elif ptype == V_TEXT_MESSAGE:
+            elif ptype == wire.V_TEXT_MESSAGE:
                 pass
             else:
                 log.debug("simulated controller: unknown RTDE packet type %r", ptype)
@@ -887,7 +745,7 @@ class _ControllerCore:
                         struct.pack(t[1], *(v if isinstance(v, tuple | list) else (v,)))
                         for t, v in zip(outputs["types"], values, strict=True)
                     )
-                    send(V_DATA_PACKAGE, struct.pack(">B", outputs["recipe"]) + body)
+                    send(wire.V_DATA_PACKAGE, struct.pack(">B", outputs["recipe"]) + body)
                 delay = next_t - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
@@ -917,15 +775,23 @@ class _ControllerCore:
         if name in ("actual_qd", "target_qd"):
             return (float(self._vel[0]), float(self._vel[2]), -float(self._vel[2]), 0.0, 0.0, 0.0)
         if name == "robot_mode":
-            return ROBOT_MODE_RUNNING
+            return wire.ROBOT_MODE_RUNNING
         if name in ("safety_mode", "safety_status"):
-            return SAFETY_MODE_PROTECTIVE_STOP if self._protective_stop else SAFETY_MODE_NORMAL
+            return (
+                wire.SAFETY_MODE_PROTECTIVE_STOP
+                if self._protective_stop
+                else wire.SAFETY_MODE_NORMAL
+            )
         if name == "safety_status_bits":
-            return SAFETY_BIT_PROTECTIVE_STOP if self._protective_stop else SAFETY_BIT_NORMAL
+            return (
+                wire.SAFETY_BIT_PROTECTIVE_STOP if self._protective_stop else wire.SAFETY_BIT_NORMAL
+            )
         if name == "robot_status_bits":
-            return STATUS_POWER_ON | (STATUS_PROGRAM_RUNNING if self._script_running else 0)
+            return wire.STATUS_POWER_ON | (
+                wire.STATUS_PROGRAM_RUNNING if self._script_running else 0
+            )
         if name == "runtime_state":
-            return RUNTIME_PLAYING if self._script_running else RUNTIME_STOPPED
+            return wire.RUNTIME_PLAYING if self._script_running else wire.RUNTIME_STOPPED
         if name in ("speed_scaling", "target_speed_fraction"):
             return 1.0
         if name == "payload":
@@ -946,7 +812,7 @@ class _ControllerCore:
             return (
                 self._out_int.get(idx, 0) if m.group(1) == "int" else self._out_double.get(idx, 0.0)
             )
-        kind = rtde_type(name)
+        kind = wire.rtde_type(name)
         if kind is None:
             return 0
         fmt = kind[1]
@@ -1032,9 +898,9 @@ class _ControllerCore:
             if low == "programstate":
                 return "PLAYING rtde_control" if running else "STOPPED <unnamed>"
             if low == "polyscopeversion":
-                return POLYSCOPE_VERSION
+                return wire.POLYSCOPE_VERSION
             if low == "version":
-                return "Version information: " + ".".join(str(v) for v in CONTROLLER_VERSION)
+                return "Version information: " + ".".join(str(v) for v in wire.CONTROLLER_VERSION)
             if low == "is in remote control":
                 return "true"
             if low == "unlock protective stop":

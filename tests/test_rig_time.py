@@ -26,8 +26,9 @@ from robot.rig_time import (
     trapezoid_time,
 )
 from robot.safety import Envelope
-from robot.sim_controller import CMD_FORCE_MODE_STOP, SimRig
+from robot.sim_controller import SimRig
 from robot.ur import URArm
+from robot.ur_wire import CMD_FORCE_MODE_STOP
 from varskin.board.simboard import SimBoard
 from varskin.cli.robot import start_simulated_controller
 
@@ -206,8 +207,12 @@ def test_scaled_board_streams_and_drifts_per_simulated_second(patch_b):
     with lock:
         wall, scene_t = np.array(seen).T
     assert len(seen) >= 10
-    # the scene's clock: scale x wall, exactly (both read from the same monotonic clock)
-    assert np.diff(scene_t) / np.diff(wall) == pytest.approx(scale, rel=0.02)
+    # The scene's clock runs at scale x wall. The board reads the clock a moment before it
+    # calls sample(), and a thread switch can stretch that moment by a millisecond, 3% of a
+    # frame: so the slope over the whole run, and a clock that never steps back. (The
+    # per-frame ratio at 2% failed once in a run of the UR tests with this file.)
+    assert np.polyfit(wall, scene_t, 1)[0] == pytest.approx(scale, rel=0.02)
+    assert (np.diff(scene_t) > 0).all()
     # frames per simulated second as at scale 1 (fewer if the machine stalls the board)
     per_sim_s = (len(seen) - 1) / (scene_t[-1] - scene_t[0])
     assert 0.5 * rate < per_sim_s <= 1.1 * rate

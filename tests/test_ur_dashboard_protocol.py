@@ -10,7 +10,8 @@ import time
 import dashboard_client  # ur-rtde is a hard dependency: missing it must fail, not skip
 import pytest
 
-from robot.sim_controller import POLYSCOPE_VERSION, SimRig, SimulatedController
+from robot.sim_controller import SimRig, SimulatedController
+from robot.ur_wire import POLYSCOPE_VERSION
 
 UNLOCK_DELAY_S = 1.0
 

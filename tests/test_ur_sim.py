@@ -14,7 +14,8 @@ import pytest
 import rtde_control  # ur-rtde is a hard dependency: missing it must fail, not skip
 import rtde_receive  # ur-rtde is a hard dependency: missing it must fail, not skip
 
-from robot.sim_controller import SimRig, SimulatedController, rtde_type
+from robot.sim_controller import SimRig, SimulatedController
+from robot.ur_wire import rtde_type
 
 
 @pytest.fixture(scope="module")
