@@ -28,6 +28,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 from multiprocessing import Pool
@@ -384,6 +385,7 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
         lines.append(
             f"Smallest uniform grid at the goal on at least half the seeds: {g[0]}x{g[1]} ({g[2]} touches)."
         )
+    lines += ["", *reliability(rows, grids, n)]
     ok_stop = sum(goal(r["stop_rms"], r["stop_located"], n) for r in rows)
     lines.append(
         f"The adaptive plan stopped at the goal on {ok_stop}/{len(rows)} seeds "
@@ -398,6 +400,37 @@ def report(results, patch: Patch, args, rig: RigModel) -> list[str]:
     if not rig.available:
         lines.append(f"Rig time: not estimated ({rig.why}); touches only.")
     lines += ["", *session_report(results, n, args)]
+    return lines
+
+
+def reliability(rows, grids, n: int) -> list[str]:
+    """Touches each plan needs so that a given share of sessions reach the goal.
+
+    A uniform grid is fixed before the session, so its count is the smallest grid at the
+    goal on that share of the seeds. The adaptive plan needs no count in advance; its count
+    is that quantile of its touches at the goal, and of where it stopped by itself (a stop
+    short of the goal counts as never).
+    """
+    order = sorted(grids.items(), key=lambda kv: kv[0][2])
+    at_goal = sorted(r["a_touches"] or np.inf for r in rows)
+    stopped = sorted(
+        r["stop"] if goal(r["stop_rms"], r["stop_located"], n) else np.inf for r in rows
+    )
+    lines = [
+        "| sessions at the goal | uniform: smallest fixed grid | adaptive: touches at the goal "
+        "| ratio | adaptive: its own stop | ratio |",
+        "|---|---|---|---|---|---|",
+    ]
+    for share, name in ((0.5, "half"), (0.9, "9 in 10"), (1.0, "all")):
+        fixed = next(((g[0], g[1], g[2]) for g, v in order if np.mean(v) >= share), None)
+        k = max(1, math.ceil(share * len(rows))) - 1  # the seeds' share-quantile, rounded up
+        a, st = at_goal[k], stopped[k]
+        u = fixed[2] if fixed else None
+        lines.append(
+            f"| {name} | {f'{fixed[0]}x{fixed[1]} ({fixed[2]})' if fixed else 'none tried'} "
+            f"| {fmt(a)} | {fmt(a / u if u else None, 2)} | {fmt(st)} "
+            f"| {fmt(st / u if u else None, 2)} |"
+        )
     return lines
 
 
