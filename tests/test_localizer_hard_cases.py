@@ -238,6 +238,27 @@ def test_no_sensor_data_at_all():
     assert all(p.status != OK for p in pred)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_maps_of_pure_noise_from_a_few_touches_give_statuses_not_a_crash(seed):
+    """A handful of touches whose readings are noise: a sensor's fit can then go through
+    every point, leaving no residual, and its touches' weights reach ~1e18. That once made
+    the touches' gain-and-placement step singular and raised numpy's LinAlgError from
+    ``localize`` and from a live update (found by fuzzing)."""
+    rng = np.random.default_rng(seed)
+    k, n = 10, 2
+    logs = PointLogs(
+        sensors=("A", "B"),
+        touch=np.arange(k),
+        xy_mm=rng.uniform(0.0, 50.0, (k, 2)),
+        values=rng.normal(0.0, 1.0, (k, n)),
+        n_samples=np.ones(k, int),
+    )
+    check(peakfit.localize(logs), n)
+    loc = peakfit.Localizer(logs.sensors)
+    for log in logs.logs():
+        check(loc.update(log), n)
+
+
 @pytest.mark.parametrize("jump", [0.3, 0.6])
 def test_sensor_whose_readings_jump_between_touches(patch_b, grid, jump):
     """Touch-to-touch jumps of 30% or 60% of the peak (interference the per-touch sample sd

@@ -158,6 +158,18 @@ def test_duplicate_locations_are_averaged():
     assert (twice.x_mm, twice.y_mm) == pytest.approx((once.x_mm, once.y_mm))
 
 
+def test_a_log_without_a_position_is_left_out():
+    """Through the Python API a log may carry a NaN position (the CSV reader refuses one);
+    like peakfit, the paper method leaves it out instead of raising qhull's ValueError."""
+    xy = square_grid(4)
+    values = peak(xy, np.array([7.0, 8.0]))
+    clean = paper.localize(make_logs(xy, values), ppcm=16).estimates[0]
+    with_nan = paper.localize(
+        make_logs(np.vstack([xy, [np.nan, 3.0]]), np.append(values, 999.0)), ppcm=16
+    ).estimates[0]
+    assert (with_nan.x_mm, with_nan.y_mm, with_nan.status) == (clean.x_mm, clean.y_mm, "ok")
+
+
 @pytest.mark.parametrize(
     "params,words",
     [

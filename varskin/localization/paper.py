@@ -89,9 +89,12 @@ def point_log_map(logs: PointLogs) -> tuple[np.ndarray, np.ndarray]:
 
     ``logs.values`` are already relative to rest (S0 subtracted) when a baseline was known.
     Non-finite values are left out of a location's mean; a location with none stays NaN.
+    A log without a finite position is left out (as peakfit does): it says nothing of where.
     """
     xy = np.asarray(logs.xy_mm, float)
     values = np.asarray(logs.values, float)
+    placed = np.isfinite(xy).all(axis=1)
+    xy, values = xy[placed], values[placed]
     if len(xy) == 0:
         return np.zeros((0, 2)), np.zeros((0, logs.n_sensors))
     locations, inverse = np.unique(xy, axis=0, return_inverse=True)

@@ -655,11 +655,22 @@ class Localizer:
             H = Jw.transpose(0, 2, 1) @ Jt + np.diag(prior)[None]
             cur = np.column_stack([lg, d])
             g = (Jw * res[..., None]).sum(axis=1) - prior[None, :] * cur
-            step = np.linalg.solve(H, g[..., None])[..., 0]
+            try:
+                step = np.linalg.solve(H, g[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                # A sensor fitted exactly (a handful of touches, no residual left) weighs
+                # its touches by ~1/1e-18, and H is singular to working precision (found by
+                # fuzzing with random maps); least squares still gives a step.
+                step = np.stack(
+                    [np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(H, g, strict=True)]
+                )
             lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), -3.0, 1.0)
             lim = 4.0 * self.place_sd_mm + 0.1
             d = np.clip(d + np.clip(step[:, 1:], -lim, lim), -lim, lim)
-        cov = np.linalg.inv(H)
+        try:
+            cov = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            cov = np.linalg.pinv(H)
         self._v_lg[rows] = cov[:, 0, 0]
         self._v_d[rows] = 0.5 * (cov[:, 1, 1] + cov[:, 2, 2])
         self._lg[rows] = lg
