@@ -10,6 +10,7 @@ default run is measured in docs/benchmarks.md.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import sqlite3
@@ -125,6 +126,28 @@ def test_replay_is_bit_identical_and_export_round_trips(full_run, tmp_path, caps
         logs = store.point_logs()
     np.testing.assert_array_equal(back.xy_mm, logs.xy_mm)
     np.testing.assert_allclose(back.values, logs.values, rtol=0, atol=1e-9)
+
+
+def test_replay_of_a_damaged_session_says_what_it_could_not_check(full_run, tmp_path, capsys):
+    """Frames lost for one touch: replay still runs and says the re-cut was not possible;
+    a damaged meta value: one line naming the file (both once tracebacks, found by fuzzing
+    session files)."""
+    _, db = full_run
+    lost = tmp_path / "lost.db"
+    shutil.copy(db, lost)
+    with sqlite3.connect(lost) as conn:
+        first, last = conn.execute("SELECT seq_first, seq_last FROM attempts LIMIT 1").fetchone()
+        conn.execute("DELETE FROM frames WHERE seq BETWEEN ? AND ?", (first, last))
+    capsys.readouterr()
+    assert main(["replay", str(lost)]) == 0
+    assert "re-cut from raw frames: not possible for every touch" in capsys.readouterr().out
+    bad = tmp_path / "bad.db"
+    shutil.copy(db, bad)
+    with sqlite3.connect(bad) as conn:
+        conn.execute("UPDATE meta SET value = '{\"a\": 1}' WHERE key = 'truth_xy'")
+    assert main(["replay", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.db: damaged session file" in err[0]
 
 
 def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):

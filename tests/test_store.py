@@ -121,6 +121,43 @@ def test_create_refuses_existing_and_open_refuses_garbage(tmp_path):
         SessionStore.open(other)
 
 
+# A damaged file (found by fuzzing session files): each mutation, then the read that meets
+# it, must end in one StoreError naming the file and saying what is wrong, not a traceback.
+DAMAGE = [
+    ("UPDATE meta SET value = 'garbage' WHERE key = 'method'", lambda s: s.meta(), "damaged"),
+    ("DELETE FROM meta WHERE key = 'method'", lambda s: s.meta()["method"], "no 'method'"),
+    ("UPDATE frames SET cells = x'00'", lambda s: list(s.frames()), "damaged"),
+    ("UPDATE point_logs SET value_blob = x'01'", lambda s: s.point_logs(), "damaged"),
+    ("DROP TABLE estimates", lambda s: s.estimates("live"), "damaged.*no such table"),
+    ("UPDATE estimates SET status = 'two words'", lambda s: s.estimates("live"), "damaged"),
+    ("DROP TABLE attempts", lambda s: s.attempt(1), "damaged"),
+]
+
+
+@pytest.mark.parametrize("mutation,read,words", DAMAGE)
+def test_a_damaged_session_file_is_one_clear_error(tmp_path, mutation, read, words):
+    rng = np.random.default_rng(4)
+    store = _store(tmp_path)
+    store.add_frames([Frame(0, 1.0, np.zeros((21, 12), np.uint16))])
+    _touch(store, 0, rng)
+    store.close()
+    with sqlite3.connect(tmp_path / "s.db") as conn:
+        conn.execute(mutation)
+    store = SessionStore.open(tmp_path / "s.db")
+    with pytest.raises(StoreError, match=words) as caught:
+        read(store)
+    assert str(tmp_path / "s.db") in str(caught.value) and "\n" not in str(caught.value)
+    store.close()
+
+
+def test_a_damaged_schema_version_is_refused(tmp_path):
+    _store(tmp_path).close()
+    with sqlite3.connect(tmp_path / "s.db") as conn:
+        conn.execute("UPDATE meta SET value = '{' WHERE key = 'schema_version'")
+    with pytest.raises(StoreError, match="unsupported session file version"):
+        SessionStore.open(tmp_path / "s.db")
+
+
 def test_killed_writer_leaves_only_committed_touches(tmp_path):
     """A process killed with SIGKILL in the middle of a touch: the file opens, holds every
     committed touch, and nothing of the one in flight."""

@@ -14,19 +14,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from varskin.board.cellmap import CellMap
+from varskin.errors import StoreError
 from varskin.localization.peakfit import Localizer
 from varskin.patch import Patch
 from varskin.predictions import Predictions
 from varskin.session import final_estimate, live_estimate
 from varskin.store import SessionStore
-from varskin.touch_window import TouchTimes, WindowConfig, cut_point_log
+from varskin.touch_window import TouchTimes, WindowConfig, WindowProblem, cut_point_log
 
 
 @dataclass(frozen=True)
 class ReplayResult:
     predictions: Predictions  # the batch estimate with the requested method
     n_logs: int
-    recut_max_diff: float  # largest |re-cut - stored| point-log value, counts (0.0: identical)
+    # largest |re-cut - stored| point-log value, counts (0.0: identical; inf: a point
+    # log could not be re-cut, its frames or attempt record missing or damaged)
+    recut_max_diff: float
     live_max_diff_mm: float  # largest difference of the live estimates (0.0: identical)
     live_status_mismatches: int
     final_max_diff_mm: float | None  # vs the stored final of the same method; None: none stored
@@ -34,9 +37,10 @@ class ReplayResult:
 
 
 def _max_diff(a: Predictions, b: Predictions) -> tuple[float, int]:
-    """Largest coordinate/sigma difference (mm) and number of differing statuses."""
-    worst, mismatches = 0.0, 0
-    for ea, eb in zip(a.estimates, b.estimates, strict=True):
+    """Largest coordinate/sigma difference (mm) and number of differing statuses (a sensor
+    missing from the stored estimates, as in a damaged file, counts as one)."""
+    worst, mismatches = 0.0, abs(len(a.estimates) - len(b.estimates))
+    for ea, eb in zip(a.estimates, b.estimates, strict=False):
         if ea.sensor != eb.sensor or ea.status != eb.status:
             mismatches += 1
             continue
@@ -50,7 +54,12 @@ def _max_diff(a: Predictions, b: Predictions) -> tuple[float, int]:
 
 def window_config(store: SessionStore) -> WindowConfig:
     w = store.meta()["window"]
-    return WindowConfig(**w)  # type: ignore[arg-type]
+    try:
+        return WindowConfig(**w)  # type: ignore[arg-type]
+    except TypeError:
+        raise StoreError(
+            f"{store.path}: damaged session file (its touch window is {w!r})"
+        ) from None
 
 
 def recut_point_logs(store: SessionStore, patch: Patch) -> float:
@@ -60,12 +69,17 @@ def recut_point_logs(store: SessionStore, patch: Patch) -> float:
     worst = 0.0
     for s in store.stored_logs():
         a = store.attempt(s.attempt_id)
-        frames = store.frames_by_seq(a.seq_first, a.seq_last)
         times = TouchTimes(a.t_start, a.t_contact, a.t_settled, a.t_release)
-        log, n_base = cut_point_log(
-            frames, times, cellmap, cfg, s.plan_index, s.log.x_mm, s.log.y_mm,
-            s.log.force_n, s.log.t_s,
-        )  # fmt: skip
+        if None in (a.seq_first, a.seq_last, a.t_start, a.t_contact, a.t_settled, a.t_release):
+            return np.inf  # a damaged attempt record: its point log cannot be re-cut
+        frames = store.frames_by_seq(a.seq_first, a.seq_last)
+        try:
+            log, n_base = cut_point_log(
+                frames, times, cellmap, cfg, s.plan_index, s.log.x_mm, s.log.y_mm,
+                s.log.force_n, s.log.t_s,
+            )  # fmt: skip
+        except WindowProblem:
+            return np.inf  # its frames are gone or damaged
         diff = np.abs(log.values - s.log.values).max() if len(log.values) else 0.0
         diff = max(diff, np.abs(log.sample_sd - s.log.sample_sd).max())
         if log.n_samples != s.log.n_samples or n_base != s.n_baseline:

@@ -15,9 +15,11 @@ read back is bit for bit what was computed: replay depends on that.
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import sqlite3
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -122,6 +124,47 @@ def _u16(a: np.ndarray) -> bytes:
     return np.ascontiguousarray(a, dtype="<u2").tobytes()
 
 
+class _Meta(dict):
+    """The session's meta values; a missing one is a damaged (or foreign) file, said so."""
+
+    def __init__(self, path: Path, items: Iterable[tuple[str, object]]) -> None:
+        super().__init__(items)
+        self.path = path
+
+    def __missing__(self, key: str):
+        raise StoreError(f"{self.path}: damaged session file (no {key!r} in its meta)")
+
+
+def _reads(fn: Callable) -> Callable:
+    """A read of a damaged file (a page overwritten, a table gone, a blob of the wrong size,
+    a meta value that is not JSON) says so in one line naming the file, not a traceback:
+    found by fuzzing session files for ``varskin replay`` and ``export``."""
+
+    def damaged(store: SessionStore, e: Exception) -> StoreError:
+        what = str(e).splitlines()[0] if str(e) else type(e).__name__
+        return StoreError(f"{store.path}: damaged session file ({what})")
+
+    if inspect.isgeneratorfunction(fn):
+
+        @functools.wraps(fn)
+        def each(self, *args, **kwargs):
+            try:
+                yield from fn(self, *args, **kwargs)
+            except (sqlite3.DatabaseError, ValueError, TypeError) as e:
+                raise damaged(self, e) from None
+
+        return each
+
+    @functools.wraps(fn)
+    def read(self, *args, **kwargs):
+        try:
+            return fn(self, *args, **kwargs)
+        except (sqlite3.DatabaseError, ValueError, TypeError) as e:
+            raise damaged(self, e) from None
+
+    return read
+
+
 class SessionStore:
     """``SessionStore.create(path, meta)`` for a new session, ``SessionStore.open(path)`` to
     resume or read one. Use from one thread: the session drains the recorder's frames into
@@ -165,7 +208,11 @@ class SessionStore:
             version = conn.execute("SELECT value FROM meta WHERE key='schema_version'").fetchone()
         except sqlite3.Error as e:
             raise StoreError(f"{path}: not a varskin session file ({e})") from None
-        if version is None or json.loads(version[0]) != SCHEMA_VERSION:
+        try:
+            supported = version is not None and json.loads(version[0]) == SCHEMA_VERSION
+        except ValueError:
+            supported = False
+        if not supported:
             conn.close()
             raise StoreError(f"{path}: unsupported session file version {version}")
         return cls(path, conn)
@@ -191,8 +238,10 @@ class SessionStore:
 
     # --- metadata -----------------------------------------------------------------------
 
+    @_reads
     def meta(self) -> dict[str, object]:
-        return {k: json.loads(v) for k, v in self._conn.execute("SELECT key, value FROM meta")}
+        rows = self._conn.execute("SELECT key, value FROM meta").fetchall()
+        return _Meta(self.path, ((k, json.loads(v)) for k, v in rows))
 
     def set_meta(self, key: str, value: object) -> None:
         with self._conn:
@@ -295,9 +344,11 @@ class SessionStore:
 
     # --- reading ------------------------------------------------------------------------
 
+    @_reads
     def sensors(self) -> tuple[str, ...]:
         return tuple(self.meta()["sensors"])  # type: ignore[arg-type]
 
+    @_reads
     def patch(self) -> Patch:
         """The patch exactly as the session ran it (its YAML is kept in the file), so a
         session replays without the checkout it was recorded with."""
@@ -309,6 +360,7 @@ class SessionStore:
             raise StoreError(f"{self.path}: its stored patch does not list the session's sensors")
         return patch
 
+    @_reads
     def baseline(self) -> tuple[np.ndarray, np.ndarray, int] | None:
         rows = self._conn.execute("SELECT rest, rest_sd, n FROM baseline ORDER BY idx").fetchall()
         if not rows:
@@ -316,9 +368,11 @@ class SessionStore:
         a = np.array([r[:2] for r in rows], float)
         return a[:, 0], a[:, 1], int(rows[0][2])
 
+    @_reads
     def n_point_logs(self) -> int:
         return int(self._conn.execute("SELECT COUNT(*) FROM point_logs").fetchone()[0])
 
+    @_reads
     def outcomes(self) -> list[Outcome]:
         return [
             Outcome(int(i), x, y, ph, bool(ok))
@@ -327,6 +381,7 @@ class SessionStore:
             )
         ]
 
+    @_reads
     def stored_logs(self) -> list[StoredLog]:
         n = len(self.sensors())
         out = []
@@ -343,6 +398,7 @@ class SessionStore:
             out.append(StoredLog(int(i), int(aid), int(nb), log))
         return out
 
+    @_reads
     def point_logs(self) -> PointLogs:
         """Every stored point log, in plan order, with the session's rest values."""
         base = self.baseline()
@@ -355,6 +411,7 @@ class SessionStore:
             source=str(self.path),
         )
 
+    @_reads
     def attempts(self, plan_index: int | None = None) -> list[Attempt]:
         sql = _SELECT_ATTEMPTS
         args: tuple = ()
@@ -363,12 +420,14 @@ class SessionStore:
             args = (plan_index,)
         return [Attempt(*row) for row in self._conn.execute(sql + " ORDER BY id", args)]
 
+    @_reads
     def attempt(self, attempt_id: int) -> Attempt:
         row = self._conn.execute(_SELECT_ATTEMPTS + " WHERE id=?", (attempt_id,)).fetchone()
         if row is None:
             raise StoreError(f"{self.path}: no attempt {attempt_id}")
         return Attempt(*row)
 
+    @_reads
     def frames_by_seq(self, first: int, last: int) -> list[Frame]:
         rows = self._conn.execute(
             "SELECT seq, t, cells FROM frames WHERE seq >= ? AND seq <= ? ORDER BY seq",
@@ -376,23 +435,28 @@ class SessionStore:
         )
         return [_frame(*row) for row in rows]
 
+    @_reads
     def frames(self) -> Iterator[Frame]:
         for row in self._conn.execute("SELECT seq, t, cells FROM frames ORDER BY seq"):
             yield _frame(*row)
 
+    @_reads
     def n_frames(self) -> int:
         return int(self._conn.execute("SELECT COUNT(*) FROM frames").fetchone()[0])
 
+    @_reads
     def max_frame_seq(self) -> int:
         row = self._conn.execute("SELECT MAX(seq) FROM frames").fetchone()
         return -1 if row[0] is None else int(row[0])
 
+    @_reads
     def gaps(self) -> list[Gap]:
         return [
             Gap(s, e, r)
             for s, e, r in self._conn.execute("SELECT start, end, reason FROM gaps ORDER BY start")
         ]
 
+    @_reads
     def estimates(self, stage: str, method: str | None = None) -> dict[int, Predictions]:
         """Stored estimates of a stage ("live" or "final"), keyed by the number of point logs
         they were computed from."""

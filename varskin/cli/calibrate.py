@@ -147,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.resume}: launch file {launch_path} changed since the session started"
             )
         launch = load_launch(launch_path)
+        if not isinstance(meta["plan"], dict):
+            raise StoreError(f"{args.resume}: damaged session file (its plan is {meta['plan']!r})")
         plan_settings = dict(meta["plan"])  # type: ignore[arg-type]
         method = args.method or str(meta["method"])
         out_path = Path(args.resume)

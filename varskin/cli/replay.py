@@ -44,6 +44,9 @@ def _same(diff: float | None, mismatches: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from varskin.errors import StoreError
     from varskin.replay import replay
     from varskin.report import write_report
     from varskin.session import rms_error_mm
@@ -58,25 +61,26 @@ def run(args: argparse.Namespace) -> int:
             "identical (bit for bit)"
             if r.recut_max_diff == 0
             else f"differs by {r.recut_max_diff:.3g} counts"
+            if np.isfinite(r.recut_max_diff)
+            else "not possible for every touch (frames or attempt records missing or damaged)"
         )
         print(f"point logs re-cut from raw frames: {recut}")
         print(f"live estimates: {_same(r.live_max_diff_mm, r.live_status_mismatches)}")
         print(f"final estimate: {_same(r.final_max_diff_mm, r.final_status_mismatches)}")
         truth = meta.get("truth_xy")
         if truth is not None:
-            import numpy as np
-
-            rms, n = rms_error_mm(r.predictions, np.asarray(truth, float))
+            try:
+                truth = np.asarray(truth, float).reshape(len(patch.sensors), 2)
+            except (TypeError, ValueError):
+                raise StoreError(
+                    f"{args.session}: damaged session file (its truth_xy is not one x, y per sensor)"
+                ) from None
+            rms, n = rms_error_mm(r.predictions, truth)
             if n:
                 print(
                     f"error vs the simulated rig's hidden layout: RMS {rms:.3f} mm over {n} sensors"
                 )
         if args.output:
-            import numpy as np
-
-            files = write_report(
-                Path(args.output), store, r.predictions, patch,
-                None if truth is None else np.asarray(truth, float),
-            )  # fmt: skip
+            files = write_report(Path(args.output), store, r.predictions, patch, truth)
             print(f"report: {files.predictions_csv.parent}/", file=sys.stderr)
     return 0
