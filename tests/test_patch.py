@@ -38,6 +38,9 @@ def test_published_patch_a_layout(patch_a):
             "repeated",
         ),
         ("name: [unclosed\n", "not valid YAML"),
+        # NaN and inf used to pass and reach the localizer's design prior (found by fuzzing).
+        ("name: p\nsize_mm: [10, 5]\ntx_x_mm: [1, .nan]\nrx_y_mm: [1]\n", "tx_x_mm[1]"),
+        ("name: p\nsize_mm: [.inf, 5]\ntx_x_mm: [1]\nrx_y_mm: [1]\n", "size_mm[0]"),
     ],
 )
 def test_bad_patch_config_names_the_problem(tmp_path, text, fragment):

@@ -9,6 +9,7 @@ file and key of any mistake.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,8 +75,8 @@ def _floats(path: str, key: str, value: object) -> tuple[float, ...]:
         raise _err(path, f"'{key}' must be a non-empty list of numbers")
     out = []
     for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise _err(path, f"'{key}[{i}]' is {v!r}, not a number")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise _err(path, f"'{key}[{i}]' is {v!r}, not a finite number")
         out.append(float(v))
     return tuple(out)
 
