@@ -142,6 +142,8 @@ def load_launch(path: str | Path) -> LaunchConfig:
         text = path.read_text()
     except OSError as e:
         raise ConfigError(f"{src}: cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{src}: is not a text file (a launch file is YAML)") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

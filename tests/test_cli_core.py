@@ -191,6 +191,42 @@ def test_unwritable_output_is_one_line_exit_2(simulated, tmp_path, capsys):
     assert err == f"varskin: error: {target}: cannot write (No such file or directory)\n"
 
 
+def _blocked(tmp_path):
+    """A path under a plain file: no command can create it, on any OS."""
+    (tmp_path / "afile").write_text("x")
+    return tmp_path / "afile" / "out"
+
+
+# Each once a traceback (found by fuzzing the commands' arguments): a user's mistake or a
+# path that cannot be written must end in one line naming it, exit 2.
+@pytest.mark.parametrize(
+    "argv,words",
+    [
+        (lambda t: ["simulate", "--seed", "-1", "-o", str(t / "s.csv")], "seed must be"),
+        (lambda t: ["demo", "--seed", "-2"], "seed must be"),
+        (
+            lambda t: ["simulate", "--patch", str(t / "bin.yaml"), "-o", str(t / "s.csv")],
+            "is not a text file",
+        ),  # fmt: skip
+        (lambda t: ["calibrate", str(t / "bin.yaml")], "is not a text file"),
+        (
+            lambda t: ["simulate", "--grid", "4x3", "-o", str(_blocked(t) / "s.csv")],
+            "Not a directory",
+        ),  # fmt: skip
+        (lambda t: ["calibrate", "-o", str(_blocked(t) / "s.db")], "cannot create session"),
+    ],
+)
+def test_bad_arguments_and_unwritable_paths_are_one_line(tmp_path, capsys, argv, words):
+    (tmp_path / "bin.yaml").write_bytes(bytes(range(256)))  # not text
+    try:
+        code = main(argv(tmp_path))
+    except SystemExit as e:  # argparse refuses before the command runs
+        code = e.code
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert words in err[-1] and err[-1].startswith("varskin"), err
+
+
 def test_plots_handle_error_circles_and_sensors_without_data(tmp_path):
     import numpy as np
 

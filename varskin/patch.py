@@ -165,6 +165,8 @@ def load_patch(path: str | Path) -> Patch:
         text = path.read_text()
     except OSError as e:
         raise _err(str(path), f"cannot read ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise _err(str(path), "is not a text file (a patch config is YAML)") from None
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

@@ -183,8 +183,11 @@ class SessionStore:
             raise StoreError(
                 f"{path}: already exists; resume it with --resume {path} or choose another -o"
             )
-        path.parent.mkdir(parents=True, exist_ok=True)
-        conn = cls._connect(path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            conn = cls._connect(path)
+        except (OSError, sqlite3.Error) as e:
+            raise StoreError(f"{path}: cannot create session store ({e})") from None
         try:
             with conn:
                 conn.executescript(_SCHEMA)

@@ -56,6 +56,14 @@ def main(argv: list[str] | None = None) -> int:
     except VarskinError as e:
         print(f"varskin: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        # A file the user named cannot be written or read (a folder missing, a file where a
+        # folder should be, no permission, a full disk): their environment, not a bug, so
+        # one line that names the file. Each command turns the errors it expects into
+        # clearer messages; this catches the rest (found by fuzzing the CLI's arguments).
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"varskin: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("varskin: interrupted", file=sys.stderr)
         return 130

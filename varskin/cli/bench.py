@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from varskin.cli._args import seed
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -32,7 +34,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--seeds",
-        type=int,
+        type=seed,
         nargs="+",
         metavar="SEED",
         help="scene seeds; default 100 101 (100 with --quick)",

@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+from varskin.cli._args import seed
 from varskin.errors import ConfigError
 from varskin.patch import resolve_patch
 
@@ -44,7 +45,7 @@ def register(subparsers) -> None:
         action="store_true",
         help="press each sensor in turn (1.5 s on, 1 s off) instead of staying idle",
     )
-    sim.add_argument("--seed", type=int, default=0, help="scene and noise seed; default 0")
+    sim.add_argument("--seed", type=seed, default=0, help="scene and noise seed; default 0")
     sim.add_argument(
         "--reverse-tx",
         action="store_true",

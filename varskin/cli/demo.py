@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from varskin import localization as registry
+from varskin.cli._args import seed
 
 DEMO_SENSOR = "S14"  # the sensor the paper's figures show
 
@@ -26,7 +27,7 @@ def register(subparsers) -> None:
         "tables and write predictions and PNG plots into the output folder.",
     )
     p.add_argument("--out", default="varskin-demo", help="output folder; default ./varskin-demo")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated scene; default 0")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the simulated scene; default 0")
     p.add_argument(
         "--probe", choices=("finger", "robot"), default="finger", help="probe; default finger"
     )

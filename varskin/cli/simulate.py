@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from varskin.cli._args import seed
 from varskin.patch import resolve_patch
 
 
@@ -40,7 +41,9 @@ def register(subparsers) -> None:
         help="finger: ~9 mm footprint, placed to about +-2 mm; robot: narrow metal probe "
         "placed to ~0.05 mm; default finger",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the scene and the noise; default 0")
+    p.add_argument(
+        "--seed", type=seed, default=0, help="seed of the scene and the noise; default 0"
+    )
     p.add_argument(
         "-o", "--output", required=True, help="point-log CSV to write (one row per frame)"
     )

@@ -1,0 +1,17 @@
+"""Argument types that several commands share, so they refuse bad values the same way:
+with argparse's one-line usage error, before anything runs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer >= 0 (numpy refuses negative ones deep inside a run)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
+    return value
