@@ -203,6 +203,59 @@ def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
     assert outside <= 2  # P(r > 3 sd) is about 1 % per sensor
 
 
+def _running_in_group(pgid: int) -> list[int]:
+    """Processes of a process group that still run (zombies, dead but not yet reaped by
+    init, do not count)."""
+    running = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            fields = stat.rsplit(")", 1)[1].split()  # after "pid (comm)": state, ppid, pgrp
+            if int(fields[2]) == pgid and fields[0] != "Z":
+                running.append(int(entry))
+    return running
+
+
+def test_sigterm_stops_the_session_as_ctrl_c_does(full_run, tmp_path):
+    """A service manager's SIGTERM: the session ends through its ``finally`` blocks (the
+    simulated controller it started is stopped, not orphaned), says how to resume, and the
+    file resumes. With Python's default SIGTERM, none of that ran."""
+    launch, _ = full_run
+    db = tmp_path / "termed.db"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "varskin", "calibrate", str(launch), "-o", str(db)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,  # its own process group: the controller's too
+    )
+    try:
+        deadline = time.monotonic() + 90
+        while n_logs_in(db) < 3:
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "the session made no progress"
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGTERM)
+        assert proc.wait(30) == 130
+        err = proc.stderr.read().decode()
+        assert (
+            f"interrupted; the session is saved: continue it with varskin calibrate --resume {db}"
+            in err
+        )
+        deadline = time.monotonic() + 10
+        while _running_in_group(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not _running_in_group(proc.pid)  # no controller or board left orphaned
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    with SessionStore.open(db) as store:
+        assert 3 <= store.n_point_logs() < N_TOUCHES
+        assert store.meta()["status"] != "complete"
+
+
 def _run_session(launch_path: Path, db: Path, fault, on_event):
     """A session driven from Python so a test can inject faults into the rig while it runs."""
     launch = load_launch(launch_path)

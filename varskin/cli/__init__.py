@@ -2,14 +2,18 @@
 
 Each module exposes ``register(subparsers)``, which adds its subcommands and sets
 ``func`` on them. A ``VarskinError`` (a user's mistake or a device fault) becomes one line
-on stderr and exit status 2; anything else is a bug and keeps its traceback.
+on stderr and exit status 2; anything else is a bug and keeps its traceback. SIGTERM (a
+service manager, ``kill``) takes the Ctrl-C path, so every ``finally`` runs: the arm
+retracts, the session file closes, simulated devices stop.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 
 from varskin.errors import VarskinError
 
@@ -51,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    previous = _interrupt_on_sigterm()
     try:
         return int(args.func(args) or 0)
     except VarskinError as e:
@@ -67,6 +72,22 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("varskin: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt_on_sigterm():
+    """Raise KeyboardInterrupt on SIGTERM (Python's default would end the process without
+    running a single ``finally``: no retract, a simulated controller left orphaned). Returns
+    the handler to restore, None where signals cannot be set (not the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupt)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,6 @@ a live rate and drop counter, and a summary a user can trust (frames, rate, drop
 
 from __future__ import annotations
 
-import signal
 import sys
 import time
 from pathlib import Path
@@ -128,9 +127,7 @@ def cmd_sim(args) -> int:
         )
     except ValueError as e:
         raise ConfigError(f"board sim: {e}") from None
-    board.start()
-    # A service manager stops us with SIGTERM: clean up the pty and the link as for Ctrl-C.
-    signal.signal(signal.SIGTERM, _raise_interrupt)
+    board.start()  # SIGTERM ends it as Ctrl-C does (varskin.cli.main): pty and link cleaned up
     try:
         print(board.path, flush=True)
         print(
@@ -153,10 +150,6 @@ def cmd_sim(args) -> int:
             flush=True,
         )
     return 0
-
-
-def _raise_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
 
 
 def cmd_record(args) -> int:

@@ -214,9 +214,9 @@ def run(args: argparse.Namespace) -> int:
             except VarskinError as e:
                 # The store holds every finished touch: say how to carry on, in the same line.
                 raise type(e)(f"{e}; {_resume_hint(out_path)}") from None
-            except KeyboardInterrupt:
+            except KeyboardInterrupt:  # Ctrl-C or SIGTERM; the rig stops on the way out
                 print(f"varskin: interrupted; {_resume_hint(out_path)}", file=sys.stderr)
-                raise
+                return 130
             _finish(store, result, launch, rig, out_path)
         finally:
             store.close()
