@@ -204,6 +204,11 @@ def _blocked(tmp_path):
     [
         (lambda t: ["simulate", "--seed", "-1", "-o", str(t / "s.csv")], "seed must be"),
         (lambda t: ["demo", "--seed", "-2"], "seed must be"),
+        (lambda t: ["calibrate", "--target-sigma", "-1"], "finite number > 0"),
+        (
+            lambda t: ["board", "record", "--port", "loop://", "--seconds", "nan", "-o", "x.csv"],
+            "finite number > 0",
+        ),  # fmt: skip
         (
             lambda t: ["simulate", "--patch", str(t / "bin.yaml"), "-o", str(t / "s.csv")],
             "is not a text file",

@@ -4,6 +4,7 @@ with argparse's one-line usage error, before anything runs."""
 from __future__ import annotations
 
 import argparse
+import math
 
 
 def seed(text: str) -> int:
@@ -14,4 +15,15 @@ def seed(text: str) -> int:
         raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
+    return value
+
+
+def positive(text: str) -> float:
+    """A duration, rate or size: a finite number > 0 ("nan" and "-1" parse as floats)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return value

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from varskin.cli._args import seed
+from varskin.cli._args import positive, seed
 from varskin.errors import ConfigError
 from varskin.patch import resolve_patch
 
@@ -29,7 +29,7 @@ def register(subparsers) -> None:
     )
     sim.add_argument(
         "--rate",
-        type=float,
+        type=positive,
         default=None,
         help="frame rate, frames/s; default as fast as --baud allows (~8/s at 115200)",
     )
@@ -73,7 +73,7 @@ def register(subparsers) -> None:
     )
     sim.add_argument(
         "--seconds",
-        type=float,
+        type=positive,
         default=None,
         help="stop after this long, s; default run until Ctrl-C",
     )
@@ -93,14 +93,14 @@ def register(subparsers) -> None:
         default=None,
         help="patch YAML path or built-in name; without it all 252 cells are written",
     )
-    rec.add_argument("--seconds", type=float, required=True, help="how long to record, s")
+    rec.add_argument("--seconds", type=positive, required=True, help="how long to record, s")
     rec.add_argument("-o", "--output", required=True, help="frames CSV to write")
     rec.add_argument(
         "--baud", type=int, default=115200, help="serial baud rate, bit/s; default 115200"
     )
     rec.add_argument(
         "--frame-timeout",
-        type=float,
+        type=positive,
         default=5.0,
         help="give up if no valid frame arrives within this long, s; default 5",
     )
@@ -157,8 +157,6 @@ def cmd_record(args) -> int:
     from varskin.board.csvsink import FrameCsvSink
     from varskin.board.recorder import Recorder
 
-    if args.seconds <= 0:
-        raise ConfigError(f"--seconds {args.seconds:g}: must be > 0")
     cellmap = CellMap.from_patch(resolve_patch(args.patch)) if args.patch else None
     recorder = Recorder(args.port, baudrate=args.baud)
     t0 = time.monotonic()

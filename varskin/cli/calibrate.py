@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from robot.launch import LaunchConfig, load_launch
+from varskin.cli._args import positive
 from varskin.errors import InputError, StoreError, VarskinError
 from varskin.localization import DEFAULT_METHOD, METHODS
 from varskin.patch import config_dir
@@ -67,7 +68,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--target-sigma",
-        type=float,
+        type=positive,
         metavar="MM",
         help="adaptive planner: stop once every sensor's sigma is below this, mm "
         "(default: the launch's plan.target_sigma_mm)",
