@@ -150,9 +150,9 @@ def test_replay_of_a_damaged_session_says_what_it_could_not_check(full_run, tmp_
     assert len(err) == 1 and "bad.db: damaged session file" in err[0]
 
 
-def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
-    launch, full_db = full_run
-    db = tmp_path / "killed.db"
+def _calibrating(launch: Path, db: Path, until_logs: int) -> subprocess.Popen:
+    """``varskin calibrate`` in a child process of its own group (its simulated controller
+    joins it), returned once ``db`` holds ``until_logs`` point logs."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "varskin", "calibrate", str(launch), "-o", str(db)],
         stdout=subprocess.DEVNULL,
@@ -161,10 +161,21 @@ def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
     )
     try:
         deadline = time.monotonic() + 90
-        while n_logs_in(db) < 10:
+        while n_logs_in(db) < until_logs:
             assert proc.poll() is None, proc.stderr.read().decode()
             assert time.monotonic() < deadline, "the session made no progress"
             time.sleep(0.05)
+    except BaseException:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    return proc
+
+
+def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
+    launch, full_db = full_run
+    db = tmp_path / "killed.db"
+    proc = _calibrating(launch, db, until_logs=10)
+    try:
         os.kill(proc.pid, signal.SIGKILL)  # the session process only: its controller orphaned
         proc.wait(10)
     finally:
@@ -225,18 +236,8 @@ def test_sigterm_stops_the_session_as_ctrl_c_does(full_run, tmp_path):
     file resumes. With Python's default SIGTERM, none of that ran."""
     launch, _ = full_run
     db = tmp_path / "termed.db"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "varskin", "calibrate", str(launch), "-o", str(db)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        start_new_session=True,  # its own process group: the controller's too
-    )
+    proc = _calibrating(launch, db, until_logs=3)
     try:
-        deadline = time.monotonic() + 90
-        while n_logs_in(db) < 3:
-            assert proc.poll() is None, proc.stderr.read().decode()
-            assert time.monotonic() < deadline, "the session made no progress"
-            time.sleep(0.05)
         os.kill(proc.pid, signal.SIGTERM)
         assert proc.wait(30) == 130
         err = proc.stderr.read().decode()
