@@ -14,7 +14,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from robot.arm import TouchSpec
 from robot.patch_frame import PatchFrame
@@ -22,6 +21,7 @@ from robot.registration import MarkerLayout, register_from_aruco, register_three
 from robot.safety import Envelope
 from varskin.errors import ConfigError, RegistrationError
 from varskin.patch import Patch, load_patch
+from varskin.yaml_file import read_yaml
 
 TOP_LEVEL_KEYS = {
     "simulated",
@@ -138,18 +138,7 @@ def load_launch(path: str | Path) -> LaunchConfig:
     """Read and validate a launch YAML; any mistake is a ``ConfigError`` naming file and key."""
     path = Path(path)
     src = str(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise ConfigError(f"{src}: cannot read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{src}: is not a text file (a launch file is YAML)") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{src}{where}: is not valid YAML") from None
+    data = read_yaml(path, "a launch file")
     return launch_from_dict(data, src, base_dir=path.parent)
 
 

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from varskin.errors import ConfigError
+from varskin.yaml_file import read_yaml
 
 
 @dataclass(frozen=True)
@@ -161,18 +161,7 @@ def patch_from_dict(data: object, source: str = "<patch>") -> Patch:
 def load_patch(path: str | Path) -> Patch:
     """Read a patch YAML; every mistake is a ``ConfigError`` naming the file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise _err(str(path), f"cannot read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise _err(str(path), "is not a text file (a patch config is YAML)") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        raise _err(f"{path}{where}", "is not valid YAML") from None
+    data = read_yaml(path, "a patch config")
     return patch_from_dict(data, str(path))
 
 

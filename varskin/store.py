@@ -15,6 +15,7 @@ read back is bit for bit what was computed: replay depends on that.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 import json
@@ -135,32 +136,33 @@ class _Meta(dict):
         raise StoreError(f"{self.path}: damaged session file (no {key!r} in its meta)")
 
 
-def _reads(fn: Callable) -> Callable:
+@contextlib.contextmanager
+def _damaged_file(path: Path):
     """A read of a damaged file (a page overwritten, a table gone, a blob of the wrong size,
     a meta value that is not JSON) says so in one line naming the file, not a traceback:
     found by fuzzing session files for ``varskin replay`` and ``export``."""
-
-    def damaged(store: SessionStore, e: Exception) -> StoreError:
+    try:
+        yield
+    except (sqlite3.DatabaseError, ValueError, TypeError) as e:
         what = str(e).splitlines()[0] if str(e) else type(e).__name__
-        return StoreError(f"{store.path}: damaged session file ({what})")
+        raise StoreError(f"{path}: damaged session file ({what})") from None
 
+
+def _reads(fn: Callable) -> Callable:
+    """``fn``, a read of the store, under ``_damaged_file`` (a generator for all it yields)."""
     if inspect.isgeneratorfunction(fn):
 
         @functools.wraps(fn)
         def each(self, *args, **kwargs):
-            try:
+            with _damaged_file(self.path):
                 yield from fn(self, *args, **kwargs)
-            except (sqlite3.DatabaseError, ValueError, TypeError) as e:
-                raise damaged(self, e) from None
 
         return each
 
     @functools.wraps(fn)
     def read(self, *args, **kwargs):
-        try:
+        with _damaged_file(self.path):
             return fn(self, *args, **kwargs)
-        except (sqlite3.DatabaseError, ValueError, TypeError) as e:
-            raise damaged(self, e) from None
 
     return read
 
