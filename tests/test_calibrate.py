@@ -402,6 +402,80 @@ def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
         assert store.n_frames() >= n_frames
 
 
+def _replays_bit_for_bit(db: Path, capsys) -> bool:
+    capsys.readouterr()
+    assert main(["replay", str(db)]) == 0
+    out = capsys.readouterr().out
+    return all(
+        f"{stage}: identical (bit for bit)" in out
+        for stage in ("point logs re-cut from raw frames", "live estimates", "final estimate")
+    )
+
+
+def test_refine_adds_touches_where_sensors_are_missing_and_resumes_as_a_refinement(
+    tmp_path, capsys
+):
+    """``--resume --refine N`` on a finished session: its touches stay as they were, up to N
+    adaptive ones follow where sensors are not yet located, replay still matches bit for bit,
+    and a refinement stopped part way resumes to the same next touch."""
+    launch = write_launch(tmp_path / "sim_sparse.yaml", grid=FAULT_GRID)
+    db = tmp_path / "refine.db"
+    assert main(["calibrate", str(launch), "-o", str(db)]) == 0
+    with SessionStore.open(db) as store:
+        first = store.outcomes()
+        first_logs = {s.plan_index: s.log.values.copy() for s in store.stored_logs()}
+        truth = np.asarray(store.meta()["truth_xy"])
+        _, n_before = rms_error_mm(store.estimates("final", "peakfit")[FAULT_N], truth)
+    assert n_before < 20  # a grid this sparse leaves sensors for the refinement
+
+    capsys.readouterr()
+    assert main(["calibrate", "--refine", "10"]) == 2
+    assert "give --resume" in capsys.readouterr().err
+    assert main(["calibrate", "--resume", str(db), "--target-sigma", "0.4"]) == 2
+    assert "needs --refine" in capsys.readouterr().err
+    unfinished = tmp_path / "unfinished.db"
+    shutil.copy(db, unfinished)
+    with sqlite3.connect(unfinished) as c:
+        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
+    assert main(["calibrate", "--resume", str(unfinished), "--refine", "10"]) == 2
+    assert "has not finished its plan" in capsys.readouterr().err
+    assert main(["calibrate", "--resume", str(db), "--refine", "10"]) == 0
+    with SessionStore.open(db) as store:
+        outcomes = store.outcomes()
+        stored = store.stored_logs()
+        n_logs = len(stored)
+        final = store.estimates("final", "peakfit")[n_logs]
+        assert store.meta()["plan"]["planner"] == "refine"
+        assert store.meta()["status"] == "complete"
+    assert FAULT_N < len(outcomes) <= FAULT_N + 10
+    assert outcomes[:FAULT_N] == first
+    assert {o.phase for o in outcomes[FAULT_N:]} == {"adaptive"}
+    for s in stored[:FAULT_N]:
+        np.testing.assert_array_equal(s.log.values, first_logs[s.plan_index])
+    rms, n_after = rms_error_mm(final, truth)
+    assert n_after >= n_before + 8 and rms < 1.5, (n_before, n_after, rms)  # 25 touches in all
+    assert _replays_bit_for_bit(db, capsys)
+
+    # Killed after three refinement touches: what a kill leaves is the store as it was
+    # after that touch's commit (the session commits each touch whole).
+    cut = FAULT_N + 3
+    with sqlite3.connect(db) as c:
+        for table in ("outcomes", "point_logs", "attempts"):
+            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
+        c.execute("DELETE FROM estimates WHERE n_logs > ?", (cut,))
+        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
+    capsys.readouterr()
+    assert main(["calibrate", "--resume", str(db)]) == 0
+    assert f"resumed after {cut} plan touches" in capsys.readouterr().err
+    with SessionStore.open(db) as store:
+        again = store.outcomes()
+        assert [s.plan_index for s in store.stored_logs()] == list(range(len(again)))
+    assert [o.plan_index for o in again] == list(range(len(again)))
+    assert FAULT_N + 10 >= len(again) > cut
+    assert again[: cut + 1] == outcomes[: cut + 1]  # the same next touch: nothing drifted
+    assert _replays_bit_for_bit(db, capsys)
+
+
 def test_live_view_draws_in_place_on_a_terminal_and_lines_in_a_log():
     import io
 

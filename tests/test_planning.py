@@ -17,6 +17,7 @@ from varskin.planning import (
     BUDGET,
     COARSE,
     EXHAUSTED,
+    GIVEN,
     TARGET,
     UNIFORM,
     AdaptivePlanner,
@@ -312,6 +313,34 @@ def test_replaying_stored_outcomes_reaches_the_same_plan(patch_b):
     assert touch is None and replay.stop_reason == TARGET
 
 
+def test_given_first_points_are_proposed_in_order_then_the_sensors_still_missing(patch_b):
+    """A refinement (``calibrate --resume --refine``) re-proposes a session's touches, failed
+    ones too, then touches where sensors are still missing, never where one failed."""
+    first = uniform_points(patch_b, 5, 3)
+    planner = AdaptivePlanner(patch_b, coarse=None, first_points=first, budget=len(first) + 3)
+    pred = predictions(patch_b, sigma=0.3, unlocated={"S14"})
+    failed_at = 7
+
+    def respond(t, _):
+        return TouchOutcome(t, t.index != failed_at, pred)
+
+    touches, _ = drive(planner, respond)
+    assert [t.index for t in touches] == list(range(len(first) + 3))
+    assert [t.phase for t in touches[: len(first)]] == [GIVEN] * len(first)
+    assert np.array_equal([[t.x_mm, t.y_mm] for t in touches[: len(first)]], first)
+    s14 = np.array([patch_b.sensor("S14").x_mm, patch_b.sensor("S14").y_mm])
+    for t in touches[len(first) :]:
+        assert t.phase == ADAPTIVE
+        # around the missing sensor: within about a footprint (6.5 mm), spreading out
+        assert np.hypot(t.x_mm - s14[0], t.y_mm - s14[1]) < 10.0
+        assert np.hypot(*(np.array([t.x_mm, t.y_mm]) - first[failed_at])) > planner.exclusion_mm
+    assert planner.stop_reason == BUDGET
+    # Every sensor already within the target: nothing to add.
+    done = AdaptivePlanner(patch_b, coarse=None, first_points=first, budget=len(first) + 3)
+    touches, _ = drive(done, lambda t, _: TouchOutcome(t, True, predictions(patch_b, 0.3)))
+    assert len(touches) == len(first) and done.stop_reason == TARGET
+
+
 def test_plain_next_counts_the_touch_as_made(patch_b):
     planner = AdaptivePlanner(patch_b, coarse=(2, 2), budget=6)
     touches = list(planner.plan())
@@ -327,6 +356,9 @@ def test_bad_parameters_are_refused(patch_b):
         {"margin_mm": 20.0},
         {"coarse": (0, 3)},
         {"exclusion_mm": -1.0},
+        {"first_points": [[1.0, 2.0]]},  # with the default coarse pass
+        {"coarse": None, "first_points": [1.0, 2.0]},
+        {"coarse": None, "first_points": [[1.0, np.nan]]},
     ):
         with pytest.raises(ValueError):
             AdaptivePlanner(patch_b, **kwargs)

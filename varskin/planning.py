@@ -36,6 +36,7 @@ from varskin.predictions import OK, R95_PER_AXIS_SD, Predictions
 UNIFORM = "uniform"
 COARSE = "coarse"
 ADAPTIVE = "adaptive"
+GIVEN = "given"  # a touch fixed in advance: a refined session's stored ones
 
 # Stop reasons of the adaptive plan (``AdaptivePlanner.stop_reason``).
 TARGET = "target"  # every sensor located with sigma_mm <= target
@@ -51,7 +52,7 @@ class PlannedTouch:
     index: int  # 0, 1, 2 ... in plan order
     x_mm: float
     y_mm: float
-    phase: str  # "uniform", "coarse" or "adaptive"
+    phase: str  # "uniform", "coarse", "given" or "adaptive"
 
 
 @dataclass(frozen=True)
@@ -157,6 +158,10 @@ class AdaptivePlanner:
     point may be unreachable, and retrying is the session's job, bounded there.
     ``stop_reason`` says why the last plan ended.
 
+    ``first_points`` replaces the coarse pass with touches already chosen (phase "given"):
+    refining a finished session (``varskin calibrate --resume --refine``) re-proposes its
+    stored touches, in their order, then goes on adaptively from all they measured.
+
     Feed it the batch estimates (``Localizer.result()``, ~0.1 s for 30 sensors): the live
     ``update()``'s statuses are provisional and flip between touches, which misleads both
     the choice and the stop (benchmarks/adaptive_plan.py, docs/benchmarks.md). Defaults
@@ -174,6 +179,7 @@ class AdaptivePlanner:
     relative_noise: float = 0.1  # per-touch noise over the peak height (sets the priors' weight)
     window_widths: float = 2.5  # the localizer's fit window, in footprint half widths
     exclusion_mm: float = 1.0
+    first_points: np.ndarray | None = None  # (K, 2) mm: touches made instead of the coarse pass
     stop_reason: str | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
@@ -181,6 +187,13 @@ class AdaptivePlanner:
         if self.coarse is not None:
             nx, ny = self.coarse
             uniform_points(self.patch, nx, ny, self.margin_mm)  # validates the grid
+        if self.first_points is not None:
+            if self.coarse is not None:
+                raise ValueError("give either coarse or first_points, not both")
+            pts = np.asarray(self.first_points, dtype=float)
+            if pts.ndim != 2 or pts.shape[1] != 2 or not np.isfinite(pts).all():
+                raise ValueError(f"first_points must be finite (K, 2) mm, got shape {pts.shape}")
+            self.first_points = pts
         if isinstance(self.budget, bool) or int(self.budget) != self.budget or self.budget < 1:
             raise ValueError(f"budget must be a whole number >= 1, got {self.budget!r}")
         for name in (
@@ -225,13 +238,14 @@ class AdaptivePlanner:
         failed: list[tuple[float, float]] = []
         latest: Predictions | None = None
         index = 0
-        coarse = (
-            uniform_points(self.patch, *self.coarse, self.margin_mm)
-            if self.coarse is not None
-            else np.zeros((0, 2))
-        )
-        for x, y in coarse[: self.budget]:
-            touch = PlannedTouch(index, float(x), float(y), COARSE)
+        if self.first_points is not None:
+            first, phase = self.first_points, GIVEN
+        elif self.coarse is not None:
+            first, phase = uniform_points(self.patch, *self.coarse, self.margin_mm), COARSE
+        else:
+            first, phase = np.zeros((0, 2)), COARSE
+        for x, y in first[: self.budget]:
+            touch = PlannedTouch(index, float(x), float(y), phase)
             outcome = yield touch
             latest = self._record(outcome, touch, done, failed, latest)
             index += 1

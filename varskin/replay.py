@@ -18,7 +18,7 @@ from varskin.errors import StoreError
 from varskin.localization.peakfit import Localizer
 from varskin.patch import Patch
 from varskin.predictions import Predictions
-from varskin.session import final_estimate, live_estimate
+from varskin.session import final_estimate, live_estimate, live_schedule
 from varskin.store import SessionStore
 from varskin.touch_window import TouchTimes, WindowConfig, WindowProblem, cut_point_log
 
@@ -96,9 +96,9 @@ def replay(store: SessionStore, patch: Patch, method: str | None = None) -> Repl
     live = store.estimates("live")
     loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch)
     live_diff, live_bad = 0.0, 0
-    mode = str(meta.get("live_estimate", "update"))
+    mode, batch_after = live_schedule(store.path, meta)
     for k, log in enumerate(logs.logs(), 1):
-        p = live_estimate(loc, log, mode)
+        p = live_estimate(loc, log, mode, batch_after)
         if k in live:
             d, m = _max_diff(p, live[k])
             live_diff, live_bad = max(live_diff, d), live_bad + m

@@ -66,6 +66,9 @@ class SessionSettings:
     # (the converged solve of all logs so far, ~0.1 s: what the adaptive planner needs, since
     # it chooses by the sigmas; benchmarks/adaptive_plan.py measured both).
     live_estimate: str = "update"
+    # A refined session (``--refine``) was watched with "update" up to this many point logs
+    # and plans adaptively after it, from "batch" estimates (None: one mode throughout).
+    batch_after_logs: int | None = None
 
 
 @dataclass(frozen=True)
@@ -195,7 +198,9 @@ class CalibrationSession:
         )
 
     def _live(self, log) -> Predictions:
-        return live_estimate(self.localizer, log, self.settings.live_estimate)
+        return live_estimate(
+            self.localizer, log, self.settings.live_estimate, self.settings.batch_after_logs
+        )
 
     def _new_localizer(self, rest, rest_sd) -> Localizer:
         return Localizer(self.sensors, rest=rest, rest_sd=rest_sd, patch=self.rig.launch.patch)
@@ -427,10 +432,27 @@ class CalibrationSession:
         )
 
 
-def live_estimate(localizer: Localizer, log, mode: str) -> Predictions:
-    """The estimate after one more point log, as the session shows and stores it."""
+def live_schedule(path, meta) -> tuple[str, int | None]:
+    """How a stored session computed its live estimates: the mode, and after how many point
+    logs they became batch solves (a refinement of a session watched with fast updates)."""
+    mode = meta.get("live_estimate", "update")
+    after = meta.get("live_batch_after")
+    if mode not in ("update", "batch") or not (
+        after is None or (isinstance(after, int) and not isinstance(after, bool) and after >= 0)
+    ):
+        raise StoreError(f"{path}: damaged session file (live estimates {mode!r} after {after!r})")
+    return mode, after
+
+
+def live_estimate(
+    localizer: Localizer, log, mode: str, batch_after_logs: int | None = None
+) -> Predictions:
+    """The estimate after one more point log, as the session shows and stores it: the fast
+    update, or with ``mode`` "batch" (or beyond ``batch_after_logs`` logs) the batch solve."""
     fast = localizer.update(log)
-    return localizer.result() if mode == "batch" else fast
+    if mode == "batch" or (batch_after_logs is not None and localizer.n_logs > batch_after_logs):
+        return localizer.result()
+    return fast
 
 
 def final_estimate(logs: PointLogs, method: str, patch) -> Predictions:

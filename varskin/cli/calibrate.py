@@ -4,7 +4,9 @@ With no argument it runs ``launch/sim.yaml``: the simulated UR controller driven
 ur-rtde client and the simulated Muca board read through a pseudo-terminal by the real
 recorder, so the default run exercises every part a real rig uses. ``--resume SESSION.db``
 carries on a session that stopped (a crash, a kill, a board that never came back) from its
-first missing touch. A real rig is only driven with ``--real``.
+first missing touch; with ``--refine N`` it adds up to N touches to a finished session,
+each where it shrinks the uncertainty of the sensors not yet located within the target
+most. A real rig is only driven with ``--real``.
 """
 
 from __future__ import annotations
@@ -16,13 +18,14 @@ import time
 from pathlib import Path
 
 from robot.launch import LaunchConfig, load_launch
-from varskin.cli._args import positive
+from varskin.cli._args import count, positive
 from varskin.errors import InputError, StoreError, VarskinError
 from varskin.localization import DEFAULT_METHOD, METHODS
 from varskin.patch import config_dir
 
 DEFAULT_LAUNCH = config_dir().parent / "launch" / "sim.yaml"
 PLANNERS = ("uniform", "adaptive")
+REFINE = "refine"  # a finished session's touches again, then adaptive ones (--refine)
 
 
 def register(subparsers) -> None:
@@ -54,6 +57,14 @@ def register(subparsers) -> None:
         help="continue this stopped session (its launch file must be unchanged)",
     )
     p.add_argument(
+        "--refine",
+        type=count,
+        metavar="N",
+        help="with --resume of a finished session: up to N more touches, each where it "
+        "shrinks the uncertainty of the sensors not yet located within --target-sigma most "
+        "(the adaptive planner, fed every touch the session made; no default)",
+    )
+    p.add_argument(
         "--planner",
         choices=PLANNERS,
         help="uniform: the launch's grid (default 20x5, as in the paper); adaptive: a coarse "
@@ -70,8 +81,8 @@ def register(subparsers) -> None:
         "--target-sigma",
         type=positive,
         metavar="MM",
-        help="adaptive planner: stop once every sensor's sigma is below this, mm "
-        "(default: the launch's plan.target_sigma_mm)",
+        help="adaptive planner and --refine: stop once every sensor's sigma is below this, "
+        "mm (default: the launch's plan.target_sigma_mm, else 0.6)",
     )
     p.add_argument(
         "--method",
@@ -114,10 +125,13 @@ def make_planner(launch: LaunchConfig, settings: dict):
     """The plan generator a session's stored settings describe (the same on resume)."""
     from varskin.planning import AdaptivePlanner, UniformPlanner
 
-    if settings["planner"] == "adaptive":
+    if settings["planner"] in ("adaptive", REFINE):
         kwargs = {"budget": settings["budget"], "margin_mm": launch.plan.margin_mm}
         if settings.get("target_sigma_mm") is not None:
             kwargs["target_sigma_mm"] = settings["target_sigma_mm"]
+        if settings["planner"] == REFINE:
+            points = settings["points"]
+            kwargs.update(coarse=None, first_points=points, budget=len(points) + settings["budget"])
         return AdaptivePlanner(launch.patch, **kwargs).plan()
     return UniformPlanner(
         launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm
@@ -127,17 +141,21 @@ def make_planner(launch: LaunchConfig, settings: dict):
 def run(args: argparse.Namespace) -> int:
     from varskin.live_view import LiveView
     from varskin.rig import open_rig
-    from varskin.session import CalibrationSession, SessionSettings
+    from varskin.session import CalibrationSession, SessionSettings, live_schedule
     from varskin.store import SessionStore
     from varskin.touch_window import WindowConfig
 
     if args.max_retries < 0:
         raise InputError("--max-retries must be >= 0")
+    if args.refine and not args.resume:
+        raise InputError("--refine adds touches to a finished session: give --resume SESSION.db")
     if args.resume:
-        if args.launch or args.output or args.planner or args.budget or args.target_sigma:
+        if args.launch or args.output or args.planner or args.budget:
             raise InputError(
                 "--resume takes its launch file and plan from the session; give no other plan options"
             )
+        if args.target_sigma and not args.refine:
+            raise InputError("--target-sigma with --resume needs --refine N")
         store = SessionStore.open(args.resume)
         meta = store.meta()
         launch_path = Path(str(meta["launch_path"]))
@@ -151,6 +169,12 @@ def run(args: argparse.Namespace) -> int:
         if not isinstance(meta["plan"], dict):
             raise StoreError(f"{args.resume}: damaged session file (its plan is {meta['plan']!r})")
         plan_settings = dict(meta["plan"])  # type: ignore[arg-type]
+        _check_plan_settings(args.resume, plan_settings)
+        live_mode, batch_after = live_schedule(args.resume, meta)
+        if args.refine:
+            plan_settings, batch_after = _refine(
+                store, meta, launch, plan_settings, args, live_mode, batch_after
+            )
         method = args.method or str(meta["method"])
         out_path = Path(args.resume)
     else:
@@ -166,6 +190,10 @@ def run(args: argparse.Namespace) -> int:
         if plan_settings["budget"] < 1:
             raise InputError("--budget must be >= 1")
         method = args.method or DEFAULT_METHOD
+        # The adaptive planner chooses by the sigmas, so it needs the batch solve after every
+        # touch; a uniform plan's live view only needs the fast update.
+        live_mode = "batch" if plan_settings["planner"] == "adaptive" else "update"
+        batch_after = None
         out_path = Path(args.output) if args.output else _default_output(launch)
         if out_path.exists():
             raise StoreError(f"{out_path}: already exists; use --resume {out_path} to continue it")
@@ -180,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
         method=method,
         max_retries=args.max_retries,
         window=window,
-        live_estimate="batch" if plan_settings["planner"] == "adaptive" else "update",
+        live_estimate=live_mode,
+        batch_after_logs=batch_after,
     )
     print(
         f"launch: {launch.source} ({'simulated rig' if launch.simulated else 'REAL robot ' + launch.robot.host}), "
@@ -206,6 +235,13 @@ def run(args: argparse.Namespace) -> int:
                     "status": "running",
                 },
             )
+        elif args.refine:
+            # Stored once the plan passed its checks and the rig is up, before the first
+            # touch: a refinement stopped part way resumes as a refinement.
+            store.set_meta("plan", plan_settings)
+            store.set_meta("live_batch_after", batch_after)
+            store.set_meta("status", "running")
+            store.commit()
         try:
             planner = make_planner(launch, plan_settings)
             total = _plan_length(launch, plan_settings)
@@ -224,6 +260,54 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_plan_settings(path: str, plan: dict) -> None:
+    """A stored plan must be one this code can rebuild: refuse a damaged one by name."""
+
+    def number(v, lo: float) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and v >= lo
+
+    kind = plan.get("planner")
+    ok = kind in (*PLANNERS, REFINE)
+    if ok and kind != "uniform":
+        budget = plan.get("budget")
+        ok = isinstance(budget, int) and number(budget, 1)
+        target = plan.get("target_sigma_mm")
+        ok = ok and (target is None or (number(target, 0) and 0 < target < float("inf")))
+    if ok and kind == REFINE:
+        pts = plan.get("points")
+        ok = isinstance(pts, list) and all(
+            isinstance(p, list) and len(p) == 2 and all(number(v, -float("inf")) for v in p)
+            for p in pts
+        )
+    if not ok:
+        raise StoreError(f"{path}: damaged session file (its plan is {plan!r})")
+
+
+def _refine(
+    store, meta, launch: LaunchConfig, plan: dict, args, mode: str, batch_after: int | None
+) -> tuple[dict, int | None]:
+    """The plan of a refinement: every touch the session made, in its order, then up to
+    ``args.refine`` adaptive ones; and after how many point logs the live estimates become
+    batch solves (the adaptive choice needs them; before, the session kept its own mode)."""
+    if meta.get("status") != "complete":
+        raise InputError(
+            f"{args.resume}: the session has not finished its plan; continue it first with "
+            f"varskin calibrate --resume {args.resume}"
+        )
+    if mode == "update" and batch_after is None:
+        batch_after = store.n_point_logs()
+    target = args.target_sigma
+    if target is None:
+        target = plan.get("target_sigma_mm", launch.plan.target_sigma_mm)
+    refined = {
+        "planner": REFINE,
+        "budget": args.refine,
+        "target_sigma_mm": target,
+        "points": [[o.x_mm, o.y_mm] for o in store.outcomes()],
+    }
+    return refined, batch_after
+
+
 def _resume_hint(out_path: Path) -> str:
     return f"the session is saved: continue it with varskin calibrate --resume {out_path}"
 
@@ -231,6 +315,8 @@ def _resume_hint(out_path: Path) -> str:
 def _plan_length(launch: LaunchConfig, plan: dict) -> int:
     if plan["planner"] == "adaptive":
         return int(plan["budget"])
+    if plan["planner"] == REFINE:
+        return len(plan["points"]) + int(plan["budget"])
     return launch.plan.nx * launch.plan.ny
 
 
@@ -239,7 +325,7 @@ def _check_plan_safe(launch: LaunchConfig, plan: dict) -> None:
     itself, or for the adaptive planner the corners and edges of the area it may choose from."""
     from varskin.planning import uniform_points
 
-    if plan["planner"] == "adaptive":
+    if plan["planner"] in ("adaptive", REFINE):
         pts = uniform_points(launch.patch, 9, 5, launch.plan.margin_mm)
     else:
         pts = uniform_points(launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm)
