@@ -377,6 +377,35 @@ def test_resume_refuses_a_changed_launch_file(full_run, tmp_path, capsys):
         launch.write_text(original)
 
 
+@pytest.mark.parametrize(
+    "damage,words",
+    [
+        ("DELETE FROM point_logs WHERE plan_index = 3", "point logs do not match"),
+        ("UPDATE outcomes SET x_mm = 'abc' WHERE plan_index = 3", "outcome 3: x_mm is 'abc'"),
+        ("UPDATE meta SET value = '\"oops\"' WHERE key = 'wall_s'", "its wall_s is 'oops'"),
+        ("DROP TABLE gaps", "no such table: gaps"),
+    ],
+)
+def test_resume_refuses_a_damaged_file_before_anything_starts(
+    full_run, tmp_path, capsys, monkeypatch, damage, words
+):
+    """Damage found by fuzzing ``calibrate --resume`` (each was a traceback, some after the
+    rig had started): one line naming the file, exit 2, the file as it was."""
+    started = []
+    monkeypatch.setattr("varskin.rig.open_rig", lambda *a, **k: started.append(a))
+    _, db = full_run
+    copy = tmp_path / "damaged.db"
+    shutil.copy(db, copy)
+    with sqlite3.connect(copy) as c:
+        c.execute(damage)
+    before = copy.read_bytes()
+    capsys.readouterr()
+    assert main(["calibrate", "--resume", str(copy)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(copy) in err[0] and words in err[0], err
+    assert started == [] and copy.read_bytes() == before
+
+
 def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
     """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
     stored point logs to the localizer and must land on exactly the stored touches (else the

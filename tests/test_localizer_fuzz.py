@@ -81,3 +81,21 @@ def test_random_degenerate_inputs_give_statuses_or_input_errors(block):
             loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, **options)
             for log in logs.logs():
                 valid(loc.update(log), logs.n_sensors)
+
+
+def test_a_probe_absurdly_far_from_the_others_gives_statuses_not_a_crash():
+    """One probe at 9.2e18 mm (a damaged session file's point log): the probes' scatter
+    looks two-dimensional but qhull finds them flat; that was a QhullError from peakfit's
+    hull (found by fuzzing ``calibrate --resume``)."""
+    gx, gy = np.meshgrid(np.linspace(3, 47, 5), np.linspace(3, 22, 3))
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    values = 300.0 / (1.0 + ((xy[:, :1] - 25.0) ** 2 + (xy[:, 1:] - 12.0) ** 2) / 81.0)
+    xy[1, 1] = 9.223372036854776e18
+    logs = PointLogs(("S1",), np.arange(len(xy)), xy, values, np.ones(len(xy), int))
+    for method in ("peakfit", "paper"):
+        with contextlib.suppress(VarskinError):
+            valid(localize(logs, method=method), 1)
+    loc = Localizer(logs.sensors)
+    for log in logs.logs():
+        valid(loc.update(log), 1)
+    valid(loc.result(), 1)

@@ -131,6 +131,24 @@ DAMAGE = [
     ("DROP TABLE estimates", lambda s: s.estimates("live"), "damaged.*no such table"),
     ("UPDATE estimates SET status = 'two words'", lambda s: s.estimates("live"), "damaged"),
     ("DROP TABLE attempts", lambda s: s.attempt(1), "damaged"),
+    # Wrong types in cells (SQLite keeps them): found by fuzzing ``calibrate --resume``,
+    # where they met the resume as tracebacks.
+    ("UPDATE outcomes SET x_mm = 'abc'", lambda s: s.outcomes(), "outcome 0: x_mm is 'abc'"),
+    ("UPDATE point_logs SET t_s = 'abc'", lambda s: s.stored_logs(), "point log 0: t_s"),
+    ("UPDATE attempts SET t_settled = x'00'", lambda s: s.attempts(), "attempt 1: a time"),
+    ("UPDATE frames SET seq = 9223372036854775807", lambda s: s.max_frame_seq(), "last frame"),
+    # What only a resume checks (SessionStore.check): the plan's record and SQLite's own.
+    ("DELETE FROM point_logs", lambda s: s.check(), "point logs do not match"),
+    (
+        "INSERT INTO outcomes VALUES (7, 1.0, 2.0, 'uniform', 0)",
+        lambda s: s.check(),
+        "plan touches are not 0, 1, 2",
+    ),
+    (
+        "PRAGMA writable_schema=ON; DELETE FROM sqlite_master WHERE name='sqlite_autoindex_gaps_1'",
+        lambda s: s.check(),
+        "damaged session file",
+    ),
 ]
 
 
@@ -142,11 +160,27 @@ def test_a_damaged_session_file_is_one_clear_error(tmp_path, mutation, read, wor
     _touch(store, 0, rng)
     store.close()
     with sqlite3.connect(tmp_path / "s.db") as conn:
-        conn.execute(mutation)
+        conn.executescript(mutation)
     store = SessionStore.open(tmp_path / "s.db")
     with pytest.raises(StoreError, match=words) as caught:
         read(store)
     assert str(tmp_path / "s.db") in str(caught.value) and "\n" not in str(caught.value)
+    store.close()
+
+
+def test_a_write_the_file_cannot_take_is_one_clear_error(tmp_path):
+    """A table gone under a resume: its next write says so, naming the file (a traceback
+    before, found by fuzzing ``calibrate --resume``); what was committed stays."""
+    rng = np.random.default_rng(5)
+    store = _store(tmp_path)
+    _touch(store, 0, rng)
+    store.close()
+    with sqlite3.connect(tmp_path / "s.db") as conn:
+        conn.execute("DROP TABLE gaps")
+    store = SessionStore.open(tmp_path / "s.db")
+    with pytest.raises(StoreError, match="cannot write to the session file.*no such table"):
+        store.add_gaps([Gap(1.0, 2.0, "timeout")])
+    assert [s.plan_index for s in store.stored_logs()] == [0]
     store.close()
 
 

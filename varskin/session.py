@@ -223,6 +223,11 @@ class CalibrationSession:
                         f"({o.x_mm:g}, {o.y_mm:g}) mm but the planner now proposes "
                         f"({touch.x_mm:g}, {touch.y_mm:g}) mm; was the launch file changed?"
                     )
+                if o.ok and o.plan_index not in logs:
+                    raise StoreError(
+                        f"{self.store.path}: damaged session file (plan touch {o.plan_index} "
+                        f"succeeded but its point log is missing)"
+                    )
                 preds = self._live(logs[o.plan_index]) if o.ok else None
                 planned, touch = touch, None  # None if the plan ends here
                 touch = self.planner.send(TouchOutcome(planned, o.ok, preds))

@@ -19,6 +19,8 @@ import contextlib
 import functools
 import inspect
 import json
+import math
+import re
 import sqlite3
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -113,6 +115,24 @@ _SELECT_ATTEMPTS = (
 )  # in the field order of ``Attempt``
 
 
+def _attempt(row: tuple) -> Attempt:
+    i, n, x, y, ph, st, msg, *times, seq_first, seq_last, aid = row
+    what = f"attempt {aid!r}"
+    return Attempt(
+        _whole(i, f"{what}: plan index"),
+        _whole(n, f"{what}: number"),
+        _real(x, f"{what}: x_mm"),
+        _real(y, f"{what}: y_mm"),
+        _text(ph, f"{what}: phase"),
+        _text(st, f"{what}: status"),
+        _text(msg, f"{what}: message"),
+        *(_opt_real(t, f"{what}: a time or force") for t in times),
+        _opt_whole(seq_first, f"{what}: first frame"),
+        _opt_whole(seq_last, f"{what}: last frame"),
+        _whole(aid, "an attempt's id"),
+    )
+
+
 def _frame(seq: int, t: float, cells: bytes) -> Frame:
     return Frame(int(seq), float(t), np.frombuffer(cells, "<u2").reshape(N_TX, N_RX).copy())
 
@@ -146,6 +166,48 @@ def _damaged_file(path: Path):
     except (sqlite3.DatabaseError, ValueError, TypeError) as e:
         what = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise StoreError(f"{path}: damaged session file ({what})") from None
+
+
+def _real(v: object, what: str) -> float:
+    """A stored number that must be one (SQLite keeps whatever a damaged file holds)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{what} is {v!r}")
+    return float(v)
+
+
+def _opt_real(v: object, what: str) -> float | None:
+    return None if v is None else _real(v, what)
+
+
+def _whole(v: object, what: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"{what} is {v!r}")
+    return v
+
+
+def _opt_whole(v: object, what: str) -> int | None:
+    return None if v is None else _whole(v, what)
+
+
+def _text(v: object, what: str) -> str:
+    if not isinstance(v, str):
+        raise ValueError(f"{what} is {v!r}")
+    return v
+
+
+def _writes(fn: Callable) -> Callable:
+    """``fn``, a write to the store: a file that cannot take it (a table gone, read-only,
+    the disk full) says so in one line naming the file; what was committed stays."""
+
+    @functools.wraps(fn)
+    def write(self, *args, **kwargs):
+        try:
+            return fn(self, *args, **kwargs)
+        except sqlite3.DatabaseError as e:
+            what = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise StoreError(f"{self.path}: cannot write to the session file ({what})") from None
+
+    return write
 
 
 def _reads(fn: Callable) -> Callable:
@@ -241,6 +303,33 @@ class SessionStore:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @_reads
+    def check(self) -> None:
+        """SQLite's own check of the file's pages and indexes, before a resume writes to it
+        (a file damaged below the tables' level can still answer every query)."""
+        rows = self._conn.execute("PRAGMA quick_check").fetchall()
+        if [r[0] for r in rows] != ["ok"]:
+            raise StoreError(f"{self.path}: damaged session file ({rows[0][0]})")
+        have = {
+            r[0] for r in self._conn.execute("SELECT name FROM sqlite_master WHERE type='table'")
+        }
+        missing = sorted(set(re.findall(r"CREATE TABLE (\w+)", _SCHEMA)) - have)
+        if missing:
+            raise StoreError(f"{self.path}: damaged session file (no such table: {missing[0]})")
+        # The plan's record: touches 0, 1, 2, ... closed in order, a point log for exactly
+        # the ones that succeeded (a resume re-feeds them in that order).
+        outcomes = self.outcomes()
+        if [o.plan_index for o in outcomes] != list(range(len(outcomes))):
+            raise StoreError(
+                f"{self.path}: damaged session file (its plan touches are not 0, 1, 2, ...)"
+            )
+        logged = [s.plan_index for s in self.stored_logs()]
+        if logged != [o.plan_index for o in outcomes if o.ok]:
+            raise StoreError(
+                f"{self.path}: damaged session file (its point logs do not match the touches "
+                f"that succeeded)"
+            )
+
     # --- metadata -----------------------------------------------------------------------
 
     @_reads
@@ -248,6 +337,7 @@ class SessionStore:
         rows = self._conn.execute("SELECT key, value FROM meta").fetchall()
         return _Meta(self.path, ((k, json.loads(v)) for k, v in rows))
 
+    @_writes
     def set_meta(self, key: str, value: object) -> None:
         with self._conn:
             self._conn.execute(
@@ -256,6 +346,7 @@ class SessionStore:
 
     # --- writing ------------------------------------------------------------------------
 
+    @_writes
     def write_baseline(self, sensors: Iterable[str], rest: np.ndarray, rest_sd: np.ndarray, n: int):
         with self._conn:
             self._conn.executemany(
@@ -266,6 +357,7 @@ class SessionStore:
                 ],
             )
 
+    @_writes
     def add_frames(self, frames: Iterable[Frame]) -> None:
         """Insert frames (not committed: the next ``commit_touch`` or ``commit`` does it)."""
         self._conn.executemany(
@@ -273,12 +365,14 @@ class SessionStore:
             [(f.seq, f.t, _u16(f.cells)) for f in frames],
         )
 
+    @_writes
     def add_gaps(self, gaps: Iterable[Gap]) -> None:
         self._conn.executemany(
             "INSERT OR IGNORE INTO gaps VALUES (?, ?, ?)",
             [(g.start, g.end, g.reason) for g in gaps],
         )
 
+    @_writes
     def add_attempt(self, a: Attempt) -> int:
         """Insert an attempt record (not committed) and return its id."""
         cur = self._conn.execute(
@@ -293,6 +387,7 @@ class SessionStore:
         )  # fmt: skip
         return int(cur.lastrowid)
 
+    @_writes
     def commit_touch(
         self,
         outcome: Outcome,
@@ -325,6 +420,7 @@ class SessionStore:
             ) from None
         self._conn.commit()
 
+    @_writes
     def write_final(self, predictions: Predictions) -> None:
         with self._conn:
             self._conn.execute(
@@ -332,6 +428,7 @@ class SessionStore:
             )
             self._insert_estimates("final", self.n_point_logs(), predictions)
 
+    @_writes
     def commit(self) -> None:
         self._conn.commit()
 
@@ -379,12 +476,23 @@ class SessionStore:
 
     @_reads
     def outcomes(self) -> list[Outcome]:
-        return [
-            Outcome(int(i), x, y, ph, bool(ok))
-            for i, x, y, ph, ok in self._conn.execute(
-                "SELECT plan_index, x_mm, y_mm, phase, ok FROM outcomes ORDER BY plan_index"
+        out = []
+        for i, x, y, ph, ok in self._conn.execute(
+            "SELECT plan_index, x_mm, y_mm, phase, ok FROM outcomes ORDER BY plan_index"
+        ):
+            what = f"outcome {i!r}"
+            if ok not in (0, 1):
+                raise ValueError(f"{what}: ok is {ok!r}")
+            out.append(
+                Outcome(
+                    _whole(i, "an outcome's plan index"),
+                    _real(x, f"{what}: x_mm"),
+                    _real(y, f"{what}: y_mm"),
+                    _text(ph, f"{what}: phase"),
+                    bool(ok),
+                )
             )
-        ]
+        return out
 
     @_reads
     def stored_logs(self) -> list[StoredLog]:
@@ -395,12 +503,27 @@ class SessionStore:
             "value_blob, sd_blob FROM point_logs ORDER BY plan_index"
         ):
             i, aid, x, y, t, f, ns, nb, vb, sb = row
+            what = f"point log {i!r}"
+            i = _whole(i, "a point log's plan index")
             values = np.frombuffer(vb, "<f8").astype(np.float64)
             sd = np.frombuffer(sb, "<f8").astype(np.float64)
             if len(values) != n or len(sd) != n:
                 raise StoreError(f"{self.path}: point log {i} has {len(values)} values, not {n}")
-            log = PointLog(int(i), x, y, values, int(ns), sd, t, f)
-            out.append(StoredLog(int(i), int(aid), int(nb), log))
+            log = PointLog(
+                i,
+                _real(x, f"{what}: x_mm"),
+                _real(y, f"{what}: y_mm"),
+                values,
+                _whole(ns, f"{what}: n_samples"),
+                sd,
+                _real(t, f"{what}: t_s"),  # a session times every touch
+                _opt_real(f, f"{what}: force_n"),
+            )
+            out.append(
+                StoredLog(
+                    i, _whole(aid, f"{what}: attempt"), _whole(nb, f"{what}: n_baseline"), log
+                )
+            )
         return out
 
     @_reads
@@ -423,14 +546,14 @@ class SessionStore:
         if plan_index is not None:
             sql += " WHERE plan_index=?"
             args = (plan_index,)
-        return [Attempt(*row) for row in self._conn.execute(sql + " ORDER BY id", args)]
+        return [_attempt(row) for row in self._conn.execute(sql + " ORDER BY id", args)]
 
     @_reads
     def attempt(self, attempt_id: int) -> Attempt:
         row = self._conn.execute(_SELECT_ATTEMPTS + " WHERE id=?", (attempt_id,)).fetchone()
         if row is None:
             raise StoreError(f"{self.path}: no attempt {attempt_id}")
-        return Attempt(*row)
+        return _attempt(row)
 
     @_reads
     def frames_by_seq(self, first: int, last: int) -> list[Frame]:
@@ -452,7 +575,13 @@ class SessionStore:
     @_reads
     def max_frame_seq(self) -> int:
         row = self._conn.execute("SELECT MAX(seq) FROM frames").fetchone()
-        return -1 if row[0] is None else int(row[0])
+        if row[0] is None:
+            return -1
+        # Frames are numbered from 0 at ~10 per second: 2**53 is beyond any session (the
+        # next frame's number must still fit SQLite's integer).
+        if _whole(row[0], "the last frame's number") >= 2**53:
+            raise ValueError(f"the last frame's number is {row[0]}")
+        return row[0]
 
     @_reads
     def gaps(self) -> list[Gap]:

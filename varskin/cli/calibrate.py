@@ -157,7 +157,11 @@ def run(args: argparse.Namespace) -> int:
         if args.target_sigma and not args.refine:
             raise InputError("--target-sigma with --resume needs --refine N")
         store = SessionStore.open(args.resume)
+        store.check()  # a resume writes to it: refuse a damaged file before anything moves
         meta = store.meta()
+        wall = meta.get("wall_s")
+        if wall is not None and (isinstance(wall, bool) or not isinstance(wall, (int, float))):
+            raise StoreError(f"{args.resume}: damaged session file (its wall_s is {wall!r})")
         launch_path = Path(str(meta["launch_path"]))
         if not launch_path.is_file():
             raise StoreError(f"{args.resume}: its launch file {launch_path} is gone")

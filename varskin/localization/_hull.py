@@ -29,15 +29,20 @@ class ProbeHull:
         self._edges: np.ndarray | None = None
         self._corners: np.ndarray | None = None
 
-    def edges(self, probes: np.ndarray) -> np.ndarray:
+    def edges(self, probes: np.ndarray) -> np.ndarray | None:
         """(E, 3) edges n.x + c <= 0 (n unit, outward) of the hull of ``probes`` (K, 2),
-        which extend the probes of the last call."""
+        which extend the probes of the last call; None if qhull finds them flat."""
         K = len(probes)
         if self._edges is None:
-            from scipy.spatial import ConvexHull
+            from scipy.spatial import ConvexHull, QhullError
 
             pts = np.unique(probes, axis=0)
-            hull = ConvexHull(pts)
+            try:
+                hull = ConvexHull(pts)
+            except QhullError:
+                # Flat to qhull's precision although the scatter test passed (a probe at
+                # 1e18 mm in a damaged file): no hull, judged as collinear probes.
+                return None
             self._edges, self._corners = hull.equations, pts[hull.vertices]
         elif self._k != K:
             new = probes[self._k :]
