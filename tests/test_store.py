@@ -135,6 +135,7 @@ DAMAGE = [
     # where they met the resume as tracebacks.
     ("UPDATE outcomes SET x_mm = 'abc'", lambda s: s.outcomes(), "outcome 0: x_mm is 'abc'"),
     ("UPDATE point_logs SET t_s = 'abc'", lambda s: s.stored_logs(), "point log 0: t_s"),
+    ("UPDATE point_logs SET y_mm = 9e18", lambda s: s.stored_logs(), "point log 0: y_mm"),
     ("UPDATE attempts SET t_settled = x'00'", lambda s: s.attempts(), "attempt 1: a time"),
     ("UPDATE frames SET seq = 9223372036854775807", lambda s: s.max_frame_seq(), "last frame"),
     # What only a resume checks (SessionStore.check): the plan's record and SQLite's own.

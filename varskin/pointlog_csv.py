@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from varskin.errors import InputError, PointLogFormatError
-from varskin.pointlogs import PointLogs, average_samples
+from varskin.pointlogs import MAX_COORD_MM, PointLogs, average_samples
 from varskin.table_csv import finite_cell, read_table
 
 KEY_COLUMNS = ("touch", "x_mm", "y_mm")
@@ -227,6 +227,8 @@ def _parse_fast(layout: _Layout, rows: list[str], line_no: np.ndarray):
     for a in (xy, t_s, force_n):
         if a is not None and not np.isfinite(a).all():
             raise ValueError("non-finite key")
+    if (np.abs(xy) > MAX_COORD_MM).any():
+        raise ValueError("coordinate beyond range")
     samples = data[:, [c - 1 for c in layout.sensor_cols]]
     touch_lines = line_no[~np.array(is_base, dtype=bool)]
     return touch, xy, samples, t_s, force_n, baseline, touch_lines
@@ -270,6 +272,12 @@ def _locate_error(layout: _Layout, rows: list[str], line_no: np.ndarray, cause: 
                 raise _error(path, line, col + 1, f"{what} in column {name!r}") from None
             if key and not np.isfinite(value):
                 raise _error(path, line, col + 1, f"{name} must be a finite number, found {cell!r}")
+            if col in (1, 2) and abs(value) > MAX_COORD_MM:
+                raise _error(
+                    path, line, col + 1,
+                    f"{name} {cell} is beyond {MAX_COORD_MM:g} mm (coordinates are mm in the "
+                    f"patch frame)",
+                )  # fmt: skip
     # The bulk parser refused something the cell-by-cell rules accept (an exotic number
     # spelling, say): report the place numpy names.
     m = re.search(r"row (\d+), column (\d+)", str(cause))

@@ -12,6 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# A touch coordinate beyond a kilometre (a patch spans centimetres) is a mistake or damage in
+# a file, not a position: refused where files are read, before it reaches the probes' hull
+# and the plots as a 1e18 mm point.
+MAX_COORD_MM = 1e6
+
 
 @dataclass(frozen=True)
 class PointLog:

@@ -32,7 +32,7 @@ import yaml
 from varskin.board.frame import N_RX, N_TX, Frame, Gap
 from varskin.errors import StoreError
 from varskin.patch import Patch, patch_from_dict
-from varskin.pointlogs import PointLog, PointLogs
+from varskin.pointlogs import MAX_COORD_MM, PointLog, PointLogs
 from varskin.predictions import Predictions, SensorEstimate
 
 SCHEMA_VERSION = 1
@@ -121,8 +121,8 @@ def _attempt(row: tuple) -> Attempt:
     return Attempt(
         _whole(i, f"{what}: plan index"),
         _whole(n, f"{what}: number"),
-        _real(x, f"{what}: x_mm"),
-        _real(y, f"{what}: y_mm"),
+        _mm(x, f"{what}: x_mm"),
+        _mm(y, f"{what}: y_mm"),
         _text(ph, f"{what}: phase"),
         _text(st, f"{what}: status"),
         _text(msg, f"{what}: message"),
@@ -173,6 +173,14 @@ def _real(v: object, what: str) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise ValueError(f"{what} is {v!r}")
     return float(v)
+
+
+def _mm(v: object, what: str) -> float:
+    """A touch coordinate (pointlogs.MAX_COORD_MM)."""
+    x = _real(v, what)
+    if abs(x) > MAX_COORD_MM:
+        raise ValueError(f"{what} is {v!r}")
+    return x
 
 
 def _opt_real(v: object, what: str) -> float | None:
@@ -486,8 +494,8 @@ class SessionStore:
             out.append(
                 Outcome(
                     _whole(i, "an outcome's plan index"),
-                    _real(x, f"{what}: x_mm"),
-                    _real(y, f"{what}: y_mm"),
+                    _mm(x, f"{what}: x_mm"),
+                    _mm(y, f"{what}: y_mm"),
                     _text(ph, f"{what}: phase"),
                     bool(ok),
                 )
@@ -511,8 +519,8 @@ class SessionStore:
                 raise StoreError(f"{self.path}: point log {i} has {len(values)} values, not {n}")
             log = PointLog(
                 i,
-                _real(x, f"{what}: x_mm"),
-                _real(y, f"{what}: y_mm"),
+                _mm(x, f"{what}: x_mm"),
+                _mm(y, f"{what}: y_mm"),
                 values,
                 _whole(ns, f"{what}: n_samples"),
                 sd,
