@@ -7,15 +7,19 @@ import argparse
 import math
 
 
-def seed(text: str) -> int:
-    """A random seed: an integer >= 0 (numpy refuses negative ones deep inside a run)."""
+def _whole(text: str, lowest: int, what: str) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"seed must be an integer >= 0, got {text!r}")
+        value = lowest - 1
+    if value < lowest:
+        raise argparse.ArgumentTypeError(f"{what} must be an integer >= {lowest}, got {text!r}")
     return value
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer >= 0 (numpy refuses negative ones deep inside a run)."""
+    return _whole(text, 0, "seed")
 
 
 def positive(text: str) -> float:
@@ -31,10 +35,4 @@ def positive(text: str) -> float:
 
 def count(text: str) -> int:
     """A number of things to do: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
+    return _whole(text, 1, "N")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import math
 import sys
 import time
 from pathlib import Path
@@ -267,21 +268,19 @@ def run(args: argparse.Namespace) -> int:
 def _check_plan_settings(path: str, plan: dict) -> None:
     """A stored plan must be one this code can rebuild: refuse a damaged one by name."""
 
-    def number(v, lo: float) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool) and v >= lo
+    def number(v) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
     kind = plan.get("planner")
     ok = kind in (*PLANNERS, REFINE)
     if ok and kind != "uniform":
-        budget = plan.get("budget")
-        ok = isinstance(budget, int) and number(budget, 1)
-        target = plan.get("target_sigma_mm")
-        ok = ok and (target is None or (number(target, 0) and 0 < target < float("inf")))
+        budget, target = plan.get("budget"), plan.get("target_sigma_mm")
+        ok = isinstance(budget, int) and number(budget) and budget >= 1
+        ok = ok and (target is None or (number(target) and target > 0))
     if ok and kind == REFINE:
         pts = plan.get("points")
         ok = isinstance(pts, list) and all(
-            isinstance(p, list) and len(p) == 2 and all(number(v, -float("inf")) for v in p)
-            for p in pts
+            isinstance(p, list) and len(p) == 2 and all(map(number, p)) for p in pts
         )
     if not ok:
         raise StoreError(f"{path}: damaged session file (its plan is {plan!r})")
