@@ -387,6 +387,13 @@ def test_resume_refuses_a_changed_launch_file(full_run, tmp_path, capsys):
         ("UPDATE outcomes SET x_mm = 'abc' WHERE plan_index = 3", "outcome 3: x_mm is 'abc'"),
         ("UPDATE meta SET value = '\"oops\"' WHERE key = 'wall_s'", "its wall_s is 'oops'"),
         ("DROP TABLE gaps", "no such table: gaps"),
+        ("UPDATE meta SET value = 'null' WHERE key = 'method'", "its method is None"),
+        (
+            "UPDATE meta SET value = json_replace(value, '$[0]', 'S2', '$[1]', 'S1') "
+            "WHERE key = 'sensors'",
+            "its sensors are not its patch's",
+        ),
+        ("UPDATE point_logs SET t_s = 1e200 WHERE plan_index = 5", "point log 5: t_s"),
     ],
 )
 def test_resume_refuses_a_damaged_file_before_anything_starts(

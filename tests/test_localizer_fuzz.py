@@ -99,3 +99,22 @@ def test_a_probe_absurdly_far_from_the_others_gives_statuses_not_a_crash():
     for log in logs.logs():
         valid(loc.update(log), 1)
     valid(loc.result(), 1)
+
+
+def test_a_touch_time_no_session_has_is_taken_as_untimed():
+    """A t_s of 1e200 s (finite, so not caught as NaN): the drift model over such times was
+    singular, a LinAlgError from the fit (found by fuzzing ``calibrate --resume``)."""
+    import dataclasses
+
+    from varskin.patch import builtin_patch
+    from varskin.simulate import simulate_session, uniform_grid
+
+    patch = builtin_patch("patch_b")
+    s = simulate_session(patch, uniform_grid(patch, 5, 3), probe="robot", seed=0)
+    logs = s.point_logs()
+    changed = [dataclasses.replace(g, t_s=1e200) if g.touch == 3 else g for g in logs.logs()]
+    logs = PointLogs.from_logs(logs.sensors, changed, logs.rest, logs.rest_sd)
+    valid(localize(logs), logs.n_sensors)
+    loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    for log in logs.logs():
+        valid(loc.update(log), logs.n_sensors)

@@ -107,6 +107,13 @@ BAD_INPUTS = [
         "'zero' is not a number",
     ),
     ("nan position", GOOD_HEAD + "1,0,nan,10,1\n2,5,0,3,4\n3,0,5,2,8\n", 2, 3, "finite"),
+    (
+        "time at 1e200 s",
+        "touch,x_mm,y_mm,t_s,S1,S2\n1,0,0,1e200,10,1\n2,5,0,1,3,4\n3,0,5,2,2,8\n",
+        2,
+        4,
+        "beyond",
+    ),
     ("position at 9e18 mm", GOOD_HEAD + "1,0,0,10,1\n2,9e18,0,3,4\n3,0,5,2,8\n", 3, 2, "beyond"),
     ("too few fields", GOOD_HEAD + GOOD_ROWS + "4,5,5,1\n", 6, 5, "4 fields, the header has 5"),
     ("too many fields", GOOD_HEAD + "1,0,0,10,1,7\n" + GOOD_ROWS, 2, 6, "6 fields"),

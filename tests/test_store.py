@@ -136,6 +136,9 @@ DAMAGE = [
     ("UPDATE outcomes SET x_mm = 'abc'", lambda s: s.outcomes(), "outcome 0: x_mm is 'abc'"),
     ("UPDATE point_logs SET t_s = 'abc'", lambda s: s.stored_logs(), "point log 0: t_s"),
     ("UPDATE point_logs SET y_mm = 9e18", lambda s: s.stored_logs(), "point log 0: y_mm"),
+    ("UPDATE point_logs SET t_s = 1e200", lambda s: s.stored_logs(), "point log 0: t_s"),
+    ("UPDATE baseline SET idx = 2 - idx", lambda s: s.baseline(), "baseline's sensors"),
+    ("UPDATE baseline SET rest = 'x' WHERE idx = 1", lambda s: s.baseline(), "S2: rest"),
     ("UPDATE attempts SET t_settled = x'00'", lambda s: s.attempts(), "attempt 1: a time"),
     ("UPDATE frames SET seq = 9223372036854775807", lambda s: s.max_frame_seq(), "last frame"),
     # What only a resume checks (SessionStore.check): the plan's record and SQLite's own.
@@ -158,6 +161,7 @@ def test_a_damaged_session_file_is_one_clear_error(tmp_path, mutation, read, wor
     rng = np.random.default_rng(4)
     store = _store(tmp_path)
     store.add_frames([Frame(0, 1.0, np.zeros((21, 12), np.uint16))])
+    store.write_baseline(SENSORS, np.array([5000.0, 6000.0, 7000.0]), np.ones(3), 50)
     _touch(store, 0, rng)
     store.close()
     with sqlite3.connect(tmp_path / "s.db") as conn:

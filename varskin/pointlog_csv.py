@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from varskin.errors import InputError, PointLogFormatError
-from varskin.pointlogs import MAX_COORD_MM, PointLogs, average_samples
+from varskin.pointlogs import MAX_COORD_MM, MAX_TIME_S, PointLogs, average_samples
 from varskin.table_csv import finite_cell, read_table
 
 KEY_COLUMNS = ("touch", "x_mm", "y_mm")
@@ -229,6 +229,8 @@ def _parse_fast(layout: _Layout, rows: list[str], line_no: np.ndarray):
             raise ValueError("non-finite key")
     if (np.abs(xy) > MAX_COORD_MM).any():
         raise ValueError("coordinate beyond range")
+    if t_s is not None and (np.abs(t_s) > MAX_TIME_S).any():
+        raise ValueError("time beyond range")
     samples = data[:, [c - 1 for c in layout.sensor_cols]]
     touch_lines = line_no[~np.array(is_base, dtype=bool)]
     return touch, xy, samples, t_s, force_n, baseline, touch_lines
@@ -272,6 +274,8 @@ def _locate_error(layout: _Layout, rows: list[str], line_no: np.ndarray, cause: 
                 raise _error(path, line, col + 1, f"{what} in column {name!r}") from None
             if key and not np.isfinite(value):
                 raise _error(path, line, col + 1, f"{name} must be a finite number, found {cell!r}")
+            if col == layout.reserved.get("t_s") and abs(value) > MAX_TIME_S:
+                raise _error(path, line, col + 1, f"t_s {cell} is beyond {MAX_TIME_S:g} s")
             if col in (1, 2) and abs(value) > MAX_COORD_MM:
                 raise _error(
                     path, line, col + 1,

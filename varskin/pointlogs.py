@@ -16,6 +16,8 @@ import numpy as np
 # a file, not a position: refused where files are read, before it reaches the probes' hull
 # and the plots as a 1e18 mm point.
 MAX_COORD_MM = 1e6
+# Likewise a touch time beyond ~30 years of session (its drift model would be singular).
+MAX_TIME_S = 1e9
 
 
 @dataclass(frozen=True)

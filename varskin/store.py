@@ -32,7 +32,7 @@ import yaml
 from varskin.board.frame import N_RX, N_TX, Frame, Gap
 from varskin.errors import StoreError
 from varskin.patch import Patch, patch_from_dict
-from varskin.pointlogs import MAX_COORD_MM, PointLog, PointLogs
+from varskin.pointlogs import MAX_COORD_MM, MAX_TIME_S, PointLog, PointLogs
 from varskin.predictions import Predictions, SensorEstimate
 
 SCHEMA_VERSION = 1
@@ -181,6 +181,14 @@ def _mm(v: object, what: str) -> float:
     if abs(x) > MAX_COORD_MM:
         raise ValueError(f"{what} is {v!r}")
     return x
+
+
+def _seconds(v: object, what: str) -> float:
+    """A touch time (pointlogs.MAX_TIME_S)."""
+    t = _real(v, what)
+    if abs(t) > MAX_TIME_S:
+        raise ValueError(f"{what} is {v!r}")
+    return t
 
 
 def _opt_real(v: object, what: str) -> float | None:
@@ -472,11 +480,19 @@ class SessionStore:
 
     @_reads
     def baseline(self) -> tuple[np.ndarray, np.ndarray, int] | None:
-        rows = self._conn.execute("SELECT rest, rest_sd, n FROM baseline ORDER BY idx").fetchall()
+        rows = self._conn.execute(
+            "SELECT sensor, rest, rest_sd, n FROM baseline ORDER BY idx"
+        ).fetchall()
         if not rows:
             return None
-        a = np.array([r[:2] for r in rows], float)
-        return a[:, 0], a[:, 1], int(rows[0][2])
+        if tuple(r[0] for r in rows) != self.sensors():
+            raise ValueError("its baseline's sensors are not the session's, in order")
+        rest = [_real(r[1], f"baseline of {r[0]}: rest") for r in rows]
+        sd = [_real(r[2], f"baseline of {r[0]}: rest_sd") for r in rows]
+        n = {_whole(r[3], f"baseline of {r[0]}: frames") for r in rows}
+        if min(sd) < 0 or len(n) != 1 or min(n) < 1:
+            raise ValueError("its baseline's spreads or frame counts are not valid")
+        return np.array(rest), np.array(sd), n.pop()
 
     @_reads
     def n_point_logs(self) -> int:
@@ -524,7 +540,7 @@ class SessionStore:
                 values,
                 _whole(ns, f"{what}: n_samples"),
                 sd,
-                _real(t, f"{what}: t_s"),  # a session times every touch
+                _seconds(t, f"{what}: t_s"),  # a session times every touch
                 _opt_real(f, f"{what}: force_n"),
             )
             out.append(

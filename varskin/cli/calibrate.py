@@ -171,6 +171,14 @@ def run(args: argparse.Namespace) -> int:
                 f"{args.resume}: launch file {launch_path} changed since the session started"
             )
         launch = load_launch(launch_path)
+        if meta["sensors"] != list(launch.patch.names):
+            raise StoreError(
+                f"{args.resume}: damaged session file (its sensors are not its patch's)"
+            )
+        if not args.method and meta["method"] not in METHODS:
+            raise StoreError(
+                f"{args.resume}: damaged session file (its method is {meta['method']!r})"
+            )
         if not isinstance(meta["plan"], dict):
             raise StoreError(f"{args.resume}: damaged session file (its plan is {meta['plan']!r})")
         plan_settings = dict(meta["plan"])  # type: ignore[arg-type]

@@ -32,7 +32,7 @@ from varskin.localization._statuses import (
     window_members,
 )
 from varskin.patch import Patch
-from varskin.pointlogs import PointLog, PointLogs
+from varskin.pointlogs import MAX_TIME_S, PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
 from varskin.scene import ADC_MAX
 
@@ -310,7 +310,7 @@ class Localizer:
             sd = np.asarray(log.sample_sd, float).reshape(-1)
             with np.errstate(invalid="ignore", divide="ignore"):
                 self._noise[k] = sd / math.sqrt(max(int(log.n_samples), 1))
-        if log.t_s is None or not math.isfinite(float(log.t_s)):
+        if log.t_s is None or not abs(float(log.t_s)) <= MAX_TIME_S:  # NaN too
             self._has_time = False
         t = float(log.t_s) if self._has_time and log.t_s is not None else float(k) * 7.5
         if self._t0 is None:
