@@ -121,8 +121,8 @@ def _attempt(row: tuple) -> Attempt:
     return Attempt(
         _whole(i, f"{what}: plan index"),
         _whole(n, f"{what}: number"),
-        _mm(x, f"{what}: x_mm"),
-        _mm(y, f"{what}: y_mm"),
+        _real(x, f"{what}: x_mm", MAX_COORD_MM),
+        _real(y, f"{what}: y_mm", MAX_COORD_MM),
         _text(ph, f"{what}: phase"),
         _text(st, f"{what}: status"),
         _text(msg, f"{what}: message"),
@@ -168,27 +168,13 @@ def _damaged_file(path: Path):
         raise StoreError(f"{path}: damaged session file ({what})") from None
 
 
-def _real(v: object, what: str) -> float:
-    """A stored number that must be one (SQLite keeps whatever a damaged file holds)."""
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+def _real(v: object, what: str, limit: float = math.inf) -> float:
+    """A stored number that must be one (SQLite keeps whatever a damaged file holds), within
+    ``limit`` in size (touch places and times: pointlogs.MAX_COORD_MM, MAX_TIME_S)."""
+    number = isinstance(v, (int, float)) and not isinstance(v, bool)
+    if not (number and math.isfinite(v) and abs(v) <= limit):
         raise ValueError(f"{what} is {v!r}")
     return float(v)
-
-
-def _mm(v: object, what: str) -> float:
-    """A touch coordinate (pointlogs.MAX_COORD_MM)."""
-    x = _real(v, what)
-    if abs(x) > MAX_COORD_MM:
-        raise ValueError(f"{what} is {v!r}")
-    return x
-
-
-def _seconds(v: object, what: str) -> float:
-    """A touch time (pointlogs.MAX_TIME_S)."""
-    t = _real(v, what)
-    if abs(t) > MAX_TIME_S:
-        raise ValueError(f"{what} is {v!r}")
-    return t
 
 
 def _opt_real(v: object, what: str) -> float | None:
@@ -510,8 +496,8 @@ class SessionStore:
             out.append(
                 Outcome(
                     _whole(i, "an outcome's plan index"),
-                    _mm(x, f"{what}: x_mm"),
-                    _mm(y, f"{what}: y_mm"),
+                    _real(x, f"{what}: x_mm", MAX_COORD_MM),
+                    _real(y, f"{what}: y_mm", MAX_COORD_MM),
                     _text(ph, f"{what}: phase"),
                     bool(ok),
                 )
@@ -535,12 +521,12 @@ class SessionStore:
                 raise StoreError(f"{self.path}: point log {i} has {len(values)} values, not {n}")
             log = PointLog(
                 i,
-                _mm(x, f"{what}: x_mm"),
-                _mm(y, f"{what}: y_mm"),
+                _real(x, f"{what}: x_mm", MAX_COORD_MM),
+                _real(y, f"{what}: y_mm", MAX_COORD_MM),
                 values,
                 _whole(ns, f"{what}: n_samples"),
                 sd,
-                _seconds(t, f"{what}: t_s"),  # a session times every touch
+                _real(t, f"{what}: t_s", MAX_TIME_S),  # a session times every touch
                 _opt_real(f, f"{what}: force_n"),
             )
             out.append(

@@ -157,32 +157,7 @@ def run(args: argparse.Namespace) -> int:
             )
         if args.target_sigma and not args.refine:
             raise InputError("--target-sigma with --resume needs --refine N")
-        store = SessionStore.open(args.resume)
-        store.check()  # a resume writes to it: refuse a damaged file before anything moves
-        meta = store.meta()
-        wall = meta.get("wall_s")
-        if wall is not None and (isinstance(wall, bool) or not isinstance(wall, (int, float))):
-            raise StoreError(f"{args.resume}: damaged session file (its wall_s is {wall!r})")
-        launch_path = Path(str(meta["launch_path"]))
-        if not launch_path.is_file():
-            raise StoreError(f"{args.resume}: its launch file {launch_path} is gone")
-        if _sha256(launch_path) != meta["launch_sha256"]:
-            raise StoreError(
-                f"{args.resume}: launch file {launch_path} changed since the session started"
-            )
-        launch = load_launch(launch_path)
-        if meta["sensors"] != list(launch.patch.names):
-            raise StoreError(
-                f"{args.resume}: damaged session file (its sensors are not its patch's)"
-            )
-        if not args.method and meta["method"] not in METHODS:
-            raise StoreError(
-                f"{args.resume}: damaged session file (its method is {meta['method']!r})"
-            )
-        if not isinstance(meta["plan"], dict):
-            raise StoreError(f"{args.resume}: damaged session file (its plan is {meta['plan']!r})")
-        plan_settings = dict(meta["plan"])  # type: ignore[arg-type]
-        _check_plan_settings(args.resume, plan_settings)
+        store, meta, launch, launch_path, plan_settings = _open_for_resume(args.resume, args)
         live_mode, batch_after = live_schedule(args.resume, meta)
         if args.refine:
             plan_settings, batch_after = _refine(
@@ -273,13 +248,40 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _check_plan_settings(path: str, plan: dict) -> None:
+def _open_for_resume(path: str, args) -> tuple:
+    """The stored session and what it ran with, each checked before anything moves: a
+    resume writes to the file and drives the rig from what it holds (a damaged value found
+    at the end, after every touch, would cost the whole run)."""
+    from varskin.store import SessionStore
+
+    store = SessionStore.open(path)
+    store.check()
+    meta = store.meta()
+    wall = meta.get("wall_s")
+    if wall is not None and (isinstance(wall, bool) or not isinstance(wall, (int, float))):
+        raise StoreError(f"{path}: damaged session file (its wall_s is {wall!r})")
+    launch_path = Path(str(meta["launch_path"]))
+    if not launch_path.is_file():
+        raise StoreError(f"{path}: its launch file {launch_path} is gone")
+    if _sha256(launch_path) != meta["launch_sha256"]:
+        raise StoreError(f"{path}: launch file {launch_path} changed since the session started")
+    launch = load_launch(launch_path)
+    if meta["sensors"] != list(launch.patch.names):
+        raise StoreError(f"{path}: damaged session file (its sensors are not its patch's)")
+    if not args.method and meta["method"] not in METHODS:
+        raise StoreError(f"{path}: damaged session file (its method is {meta['method']!r})")
+    plan = meta["plan"]
+    _check_plan_settings(path, plan)
+    return store, meta, launch, launch_path, dict(plan)  # type: ignore[arg-type]
+
+
+def _check_plan_settings(path: str, plan: object) -> None:
     """A stored plan must be one this code can rebuild: refuse a damaged one by name."""
 
     def number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
-    kind = plan.get("planner")
+    kind = plan.get("planner") if isinstance(plan, dict) else None
     ok = kind in (*PLANNERS, REFINE)
     if ok and kind != "uniform":
         budget, target = plan.get("budget"), plan.get("target_sigma_mm")
