@@ -69,6 +69,10 @@ CONTACT_ACCEL_M_S2 = 0.5  # the descent's acceleration (default of URArm.contact
 STOP_DECEL_M_S2 = 3.0  # stopL: after contact, and in a safe stop
 FORCE_MODE_QUIET_S = 0.02  # without motion before forceMode
 RUNTIME_PLAYING = 2  # RTDE runtime_state
+# A protective stop also ends the control script, and the two reach us on separate RTDE
+# streams (rtde_control's and rtde_receive's), so the script's end can be seen first. This
+# long (a dozen packets at 125 Hz) the stop is looked for before the end is called a stop.
+SCRIPT_END_GRACE_S = 0.1
 RUNTIME_PAUSED = 4
 
 
@@ -449,6 +453,11 @@ class URArm:
             self._dead = f"lost during {what}"
             raise ConnectionLost(f"UR {self.host}: connection lost during {what}")
         if not self._call("isProgramRunning", self._ctrl.isProgramRunning, check=False):
+            deadline = time.monotonic() + SCRIPT_END_GRACE_S
+            while time.monotonic() < deadline:
+                if self._call("isProtectiveStopped", self._recv.isProtectiveStopped, check=False):
+                    raise ProtectiveStop(f"UR {self.host}: protective stop during {what}")
+                time.sleep(0.5 / self.frequency_hz)
             raise ScriptNotRunning(f"UR {self.host}: control script stopped during {what}")
 
     def _watch(self, what: str, limit_n: float) -> tuple[float, list[float]]:

@@ -117,8 +117,9 @@ def test_touch_holds_target_force_within_10_percent_in_the_controller_log(health
     assert true_f.max() <= 1.10 * SPEC.target_force_n, true_f.max()
     dwell = dwell_window_forces(sim)
     assert abs(np.mean(dwell) - SPEC.target_force_n) <= 0.10 * SPEC.target_force_n
-    # the driver's report agrees with the controller, and the window is ordered
-    assert abs(res.mean_force_n - SPEC.target_force_n) < 0.3
+    # the driver's report agrees with the controller up to the zeroing's error (one noisy
+    # sample, sd 0.1 N here), and the window is ordered
+    assert abs(res.mean_force_n - np.mean(dwell)) < 0.45
     assert res.t_contact < res.t_settled < res.t_release
     assert ticks and all(res.t_settled <= t.t <= res.t_release for t in ticks)
     assert ticks[-1].elapsed_s >= SPEC.dwell_s - 0.05
@@ -185,8 +186,28 @@ def test_protective_stop_mid_touch_raises_reports_and_recovers(healthy, rig):
     arm.recover()
     assert not arm.status().protective_stop
     res = arm.touch(skin_point(rig, 35.0, 12.0), SPEC)
-    assert res.contact and res.mean_force_n == pytest.approx(SPEC.target_force_n, rel=0.15)
+    assert res.contact and abs(np.mean(dwell_window_forces(sim)) - SPEC.target_force_n) <= 0.2
+    # what the driver reads carries the zeroing's error (one noisy sample; sd 0.1 N here)
+    assert abs(res.mean_force_n - SPEC.target_force_n) < 0.45
     assert ("unlock protective stop", "Protective stop releasing") in sim.dashboard_log()
+
+
+def test_a_protective_stop_seen_after_the_script_end_is_still_a_protective_stop(healthy, rig):
+    """A stop ends the script too, and the two arrive on separate RTDE streams: when the
+    script's end shows first, the driver still names the protective stop."""
+    sim, arm = healthy
+    tripped = []
+
+    def trip(tick):
+        if not tripped:
+            tripped.append(tick)
+            sim.stop_script()
+            threading.Timer(0.01, sim.inject_protective_stop).start()
+
+    with pytest.raises(ProtectiveStop):
+        arm.touch(skin_point(rig, 50.0, 12.0), SPEC, trip)
+    arm.recover()
+    assert not arm.status().protective_stop
 
 
 def test_stopped_script_raises_script_not_running_then_recovers_by_reupload(healthy, rig):
