@@ -394,6 +394,7 @@ def test_resume_refuses_a_changed_launch_file(full_run, tmp_path, capsys):
     "damage,words",
     [
         ("DELETE FROM point_logs WHERE plan_index = 3", "point logs do not match"),
+        ("UPDATE point_logs SET y_mm = y_mm + 7.5 WHERE plan_index = 3", "point log 3 is at"),
         ("UPDATE outcomes SET x_mm = 'abc' WHERE plan_index = 3", "outcome 3: x_mm is 'abc'"),
         ("UPDATE meta SET value = '\"oops\"' WHERE key = 'wall_s'", "its wall_s is 'oops'"),
         ("DROP TABLE gaps", "no such table: gaps"),

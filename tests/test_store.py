@@ -153,6 +153,21 @@ DAMAGE = [
         lambda s: s.check(),
         "damaged session file",
     ),
+    # Damage that keeps every type valid (left by the resume fuzzing): a point log no longer
+    # agrees with its own touch, its attempt, or what a mean of counts can be.
+    (
+        "UPDATE point_logs SET x_mm = x_mm + 7.5",
+        lambda s: s.check(),
+        r"point log 0 is at \(8.5, 2\)",
+    ),
+    ("UPDATE attempts SET status = 'board_gap'", lambda s: s.check(), "names attempt 1, not its"),
+    ("UPDATE point_logs SET attempt_id = 9", lambda s: s.check(), "names attempt 9, not its"),
+    (
+        f"UPDATE point_logs SET value_blob = x'{'000000000000f87f' * 3}'",
+        lambda s: s.check(),
+        "point log 0 holds values that are not finite",
+    ),
+    ("UPDATE point_logs SET n_samples = 0", lambda s: s.check(), "no samples"),
 ]
 
 

@@ -325,12 +325,30 @@ class SessionStore:
             raise StoreError(
                 f"{self.path}: damaged session file (its plan touches are not 0, 1, 2, ...)"
             )
-        logged = [s.plan_index for s in self.stored_logs()]
-        if logged != [o.plan_index for o in outcomes if o.ok]:
+        stored = self.stored_logs()
+        if [s.plan_index for s in stored] != [o.plan_index for o in outcomes if o.ok]:
             raise StoreError(
                 f"{self.path}: damaged session file (its point logs do not match the touches "
                 f"that succeeded)"
             )
+        # Each point log is written with its outcome, from the same touch and the attempt
+        # that made it, so its copies of them must agree exactly; its values are a mean of
+        # whole counts. Damage that keeps every type valid shows here, if anywhere.
+        attempts = {a.id: a for a in self.attempts()}
+        for s in stored:
+            o, g = outcomes[s.plan_index], s.log
+            where = f"{self.path}: damaged session file (point log {s.plan_index}"
+            if (g.x_mm, g.y_mm) != (o.x_mm, o.y_mm):
+                raise StoreError(f"{where} is at ({g.x_mm:g}, {g.y_mm:g}) mm, its touch at "
+                                 f"({o.x_mm:g}, {o.y_mm:g}) mm)")  # fmt: skip
+            a = attempts.get(s.attempt_id)
+            own = (s.plan_index, "ok", o.x_mm, o.y_mm)
+            if a is None or (a.plan_index, a.status, a.x_mm, a.y_mm) != own:
+                raise StoreError(f"{where} names attempt {s.attempt_id}, not its own ok one)")
+            if not (np.isfinite(g.values).all() and np.isfinite(g.sample_sd).all()):
+                raise StoreError(f"{where} holds values that are not finite)")
+            if (g.sample_sd < 0).any() or g.n_samples < 1 or s.n_baseline < 1:
+                raise StoreError(f"{where} holds a negative spread or no samples)")
 
     # --- metadata -----------------------------------------------------------------------
 
