@@ -69,11 +69,11 @@ CONTACT_ACCEL_M_S2 = 0.5  # the descent's acceleration (default of URArm.contact
 STOP_DECEL_M_S2 = 3.0  # stopL: after contact, and in a safe stop
 FORCE_MODE_QUIET_S = 0.02  # without motion before forceMode
 RUNTIME_PLAYING = 2  # RTDE runtime_state
+RUNTIME_PAUSED = 4
 # A protective stop also ends the control script, and the two reach us on separate RTDE
 # streams (rtde_control's and rtde_receive's), so the script's end can be seen first. This
 # long (a dozen packets at 125 Hz) the stop is looked for before the end is called a stop.
 SCRIPT_END_GRACE_S = 0.1
-RUNTIME_PAUSED = 4
 
 
 class URArm:

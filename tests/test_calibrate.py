@@ -102,7 +102,7 @@ def test_calibrate_runs_the_plan_stores_and_reports(full_run, capsys):
     # 42 touches for 30 sensors are coarse (100 give ~0.25 mm). The frames each window holds
     # depend on host timing, so the RMS varies run to run: 0.57-1.01 mm in 8 runs, the last
     # TX wire's sensors (beyond the probes' last column) 1-2 mm off within ~3 sigma; the
-    # median error was 0.37-0.56 mm.
+    # median error 0.37-0.56 mm in the last 4.
     assert rms < 1.5 and median_error_mm(final, truth) < 0.8
     report = db.with_suffix("")
     for name in ("predictions.csv", "predictions.json", "point_log_maps.png", "predictions.png",

@@ -307,8 +307,9 @@ class SessionStore:
 
     @_reads
     def check(self) -> None:
-        """SQLite's own check of the file's pages and indexes, before a resume writes to it
-        (a file damaged below the tables' level can still answer every query)."""
+        """What a resume checks before it writes to the file: SQLite's own check of the
+        pages and indexes (a file damaged below the tables' level can still answer every
+        query), the schema's tables, and the plan's record, each point log included."""
         rows = self._conn.execute("PRAGMA quick_check").fetchall()
         if [r[0] for r in rows] != ["ok"]:
             raise StoreError(f"{self.path}: damaged session file ({rows[0][0]})")
