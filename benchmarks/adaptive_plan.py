@@ -570,14 +570,27 @@ def _range(text: str) -> tuple[int, int]:
     return int(a), int(b or a)
 
 
-def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def scene_arguments(p: argparse.ArgumentParser, seeds: int) -> None:
+    """The scene options the planning benchmarks share (same seeds give the same scenes)."""
     p.add_argument("--patch", default="patch_b")
-    p.add_argument("--seeds", type=int, default=8)
+    p.add_argument("--seeds", type=int, default=seeds)
     # Seeds 0-7 chose the planner's defaults; 100 on are fresh.
     p.add_argument("--first-seed", type=int, default=100)
     p.add_argument("--frames", type=int, default=8, help="frames per touch (8 = 1 s dwell)")
     p.add_argument("--margin", type=float, default=3.0)
+
+
+def run_jobs(fn, jobs: list, n: int) -> list:
+    """``fn`` over ``jobs``, in ``n`` processes when ``n`` > 1, in order."""
+    if n <= 1:
+        return [fn(j) for j in jobs]
+    with Pool(n) as pool:
+        return pool.map(fn, jobs)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    scene_arguments(p, seeds=8)
     p.add_argument("--nx", type=_range, default=(4, 20), help="uniform columns, e.g. 4-20")
     p.add_argument("--ny", type=int, nargs="+", default=[3, 4, 5], help="uniform rows")
     p.add_argument(
@@ -609,11 +622,7 @@ def main(argv: list[str] | None = None) -> None:
     rig = RigModel(args.launch, args.frames / FRAME_RATE_HZ)
     jobs = [(seed, args) for seed in range(args.first_seed, args.first_seed + args.seeds)]
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with Pool(args.jobs) as pool:
-            results = pool.map(_seed_job, jobs)
-    else:
-        results = [_seed_job(j) for j in jobs]
+    results = run_jobs(_seed_job, jobs, args.jobs)
     for line in report(results, patch, args, rig):
         print(line)
     print(f"({time.perf_counter() - t0:.0f} s, {args.jobs} job(s))")

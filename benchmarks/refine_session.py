@@ -24,7 +24,6 @@ import argparse
 import sys
 import time
 from dataclasses import dataclass
-from multiprocessing import Pool
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +38,8 @@ from adaptive_plan import (  # noqa: E402
     fmt,
     goal,
     max_sigma,
+    run_jobs,
+    scene_arguments,
     score,
 )
 
@@ -149,11 +150,7 @@ def report(results, grids, n: int, args) -> list[str]:
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--patch", default="patch_b")
-    p.add_argument("--seeds", type=int, default=24)
-    p.add_argument("--first-seed", type=int, default=100)
-    p.add_argument("--frames", type=int, default=8, help="frames per touch (8 = 1 s dwell)")
-    p.add_argument("--margin", type=float, default=3.0)
+    scene_arguments(p, seeds=24)
     p.add_argument("--grids", type=_grid, nargs="+", default=[(20, 5), (10, 3)], help="base grids")
     p.add_argument("--refine", type=int, default=40, help="most touches added (--refine N)")
     p.add_argument("--target", type=float, default=AdaptivePlanner.target_sigma_mm)
@@ -165,11 +162,7 @@ def main(argv: list[str] | None = None) -> None:
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     jobs = [(seed, grid, args) for grid in args.grids for seed in seeds]
     t0 = time.perf_counter()
-    if args.jobs > 1:
-        with Pool(args.jobs) as pool:
-            results = pool.map(_job, jobs)
-    else:
-        results = [_job(j) for j in jobs]
+    results = run_jobs(_job, jobs, args.jobs)
     for line in report(results, args.grids, len(patch.names), args):
         print(line)
     print(f"({time.perf_counter() - t0:.0f} s, {args.jobs} job(s))")
