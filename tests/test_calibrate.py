@@ -162,6 +162,9 @@ def _calibrating(launch: Path, db: Path, until_logs: int) -> subprocess.Popen:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         start_new_session=True,
+        # A killed session cannot remove its simulated board's device directory: keep it
+        # under the test's own tmp_path instead of leaving one in /tmp per run.
+        env={**os.environ, "TMPDIR": str(db.parent)},
     )
     try:
         deadline = time.monotonic() + 90
