@@ -221,6 +221,7 @@ def test_scaled_board_streams_and_drifts_per_simulated_second(patch_b):
 
 def test_board_time_scale_defaults_to_real_time(patch_b):
     board = SimBoard(patch_b, rate_hz=8.0, baud=None)
+    board.stop()  # never started, but it made its device directory
     assert board.time_scale == 1.0
     with pytest.raises(ValueError, match="time_scale"):
         SimBoard(patch_b, time_scale=0.0)
