@@ -24,7 +24,6 @@ def main() -> None:
             for prior in (False, True):
                 r = []
                 ratio = []
-                mx = []
                 over2 = 0
                 big = []  # (seed, sensor, error, sigma) of every sensor above 2 mm
                 paper_rms = []
@@ -40,7 +39,6 @@ def main() -> None:
                     ]
                     e = e[np.isfinite(e)]
                     r.append(rms(e))
-                    mx.append(e.max())
                     over2 += int(e.max() > 2)
                     if probe == "finger":
                         pp = localize(L, method="paper", ppcm=16)

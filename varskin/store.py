@@ -156,6 +156,11 @@ class _Meta(dict):
         raise StoreError(f"{self.path}: damaged session file (no {key!r} in its meta)")
 
 
+def _first_line(e: Exception) -> str:
+    """What an error says, in one line for a one-line message."""
+    return str(e).splitlines()[0] if str(e) else type(e).__name__
+
+
 @contextlib.contextmanager
 def _damaged_file(path: Path):
     """A read of a damaged file (a page overwritten, a table gone, a blob of the wrong size,
@@ -164,8 +169,7 @@ def _damaged_file(path: Path):
     try:
         yield
     except (sqlite3.DatabaseError, ValueError, TypeError) as e:
-        what = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise StoreError(f"{path}: damaged session file ({what})") from None
+        raise StoreError(f"{path}: damaged session file ({_first_line(e)})") from None
 
 
 def _real(v: object, what: str, limit: float = math.inf) -> float:
@@ -206,8 +210,9 @@ def _writes(fn: Callable) -> Callable:
         try:
             return fn(self, *args, **kwargs)
         except sqlite3.DatabaseError as e:
-            what = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise StoreError(f"{self.path}: cannot write to the session file ({what})") from None
+            raise StoreError(
+                f"{self.path}: cannot write to the session file ({_first_line(e)})"
+            ) from None
 
     return write
 
