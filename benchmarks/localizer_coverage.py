@@ -32,7 +32,7 @@ from multiprocessing import Pool
 
 import numpy as np
 
-from varskin.localization.peakfit import Localizer, _predictions, _quiet
+from varskin.localization.peakfit import _predictions, _quiet, solved
 from varskin.patch import builtin_patch
 from varskin.scene import ProbeModel, Scene
 from varskin.simulate import simulate_session, uniform_grid
@@ -55,13 +55,8 @@ def one(job: tuple[str, str, int]) -> dict:
     scene.sample = recording
     points = uniform_grid(p, 20, 5)
     s = simulate_session(p, points, probe, seed, scene=scene)
-    logs = s.point_logs()
-    loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=p)
-    for log in logs.logs():
-        loc._append(log)
-    with _quiet():
-        loc.solve_all()
-    K, n = loc._k, len(logs.sensors)
+    loc = solved(s.point_logs(), patch=p)
+    K, n = loc._k, len(loc.sensors)
     real = np.array(landed) - points
     left = (real - real.mean(axis=0)) - loc._dxy[:K]
     scales = {

@@ -147,10 +147,7 @@ def test_missed_touches_are_detected_and_ignored(patch_b, grid):
     missed = rng.choice(len(logs), 8, replace=False)
     # No contact: every sensor reads its (drifting) rest, plus noise.
     logs.values[missed] = s.scene.offset(logs.t_s[missed]) + rng.normal(0, 1, (8, 30))
-    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
-    for log in logs.logs():
-        loc._append(log)
-    loc.solve_all()
+    loc = peakfit.solved(logs)
     assert set(np.flatnonzero(loc._missed[: loc.n_logs])) == set(missed)
     pred = check(loc.result(), 30)
     for i, p in enumerate(pred):

@@ -1081,8 +1081,9 @@ def _build(loc, status, xy, sigma, snr, params) -> Predictions:
     return Predictions(NAME, est, params)
 
 
-def localize(logs: PointLogs, **params) -> Predictions:
-    """Batch solve: every log at once, cold start (equals the incremental result; see tests)."""
+def solved(logs: PointLogs, **params) -> Localizer:
+    """A localizer that has batch-solved every log at once, from a cold start (its state,
+    for diagnostics; ``localize`` gives its result)."""
     if not isinstance(logs, PointLogs):
         raise InputError(f"{NAME}: expected PointLogs, got {type(logs).__name__}")
     loc = Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, **params)
@@ -1090,4 +1091,9 @@ def localize(logs: PointLogs, **params) -> Predictions:
         loc._append(log)
     with _quiet():
         loc.solve_all()
-    return loc.result()
+    return loc
+
+
+def localize(logs: PointLogs, **params) -> Predictions:
+    """Batch solve: every log at once, cold start (equals the incremental result; see tests)."""
+    return solved(logs, **params).result()
