@@ -6,6 +6,7 @@ import json
 import sys
 import types
 
+import numpy as np
 import pytest
 
 from varskin.cli import main
@@ -266,3 +267,35 @@ def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, capsy
         assert main(["localize", str(logs), *extra]) == 0
         last = capsys.readouterr().out.strip().splitlines()[-1]
         assert last.startswith("peakfit: ") and last.endswith(words), last
+
+
+def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_path):
+    """``--first-order-sigma`` gives the sigmas of ``calibrate_sigma=False``, the same
+    positions, and sigmas that differ from the checked default (on this finger scene the
+    check narrows them)."""
+    from varskin.localization import localize
+    from varskin.pointlog_csv import read_point_logs
+
+    logs, _ = simulated
+    out, scale = {}, {}
+    for name, extra in (("checked", []), ("first", ["--first-order-sigma"])):
+        path = tmp_path / f"{name}.json"
+        assert main(["localize", str(logs), "-q", "--json", str(path), *extra]) == 0
+        saved = json.loads(path.read_text())
+        out[name] = {e["sensor"]: e for e in saved["sensors"]}
+        scale[name] = saved["params"]["sigma_scale"]
+    assert scale["first"] == 1.0
+    direct = localize(read_point_logs(logs), calibrate_sigma=False)
+    for e in direct:
+        got = out["first"][e.sensor]
+        assert got["status"] == e.status
+        if e.status == "ok":
+            assert got["sigma_mm"] == pytest.approx(e.sigma_mm, rel=1e-9)
+    both = [s for s, e in out["first"].items() if e["status"] == "ok"]
+    both = [s for s in both if out["checked"][s]["status"] == "ok"]
+    assert len(both) >= 25
+    for s in both:
+        assert out["checked"][s]["x_mm"] == pytest.approx(out["first"][s]["x_mm"], abs=1e-9)
+    ratio = [out["checked"][s]["sigma_mm"] / out["first"][s]["sigma_mm"] for s in both]
+    assert np.ptp(ratio) < 1e-6 and abs(ratio[0] - 1.0) > 0.05, ratio[:3]
+    assert ratio[0] == pytest.approx(scale["checked"], rel=1e-9)

@@ -110,9 +110,8 @@ def test_a_wrong_response_model_still_beats_the_paper_with_honest_sigma(probe, p
 
 
 def test_two_sigma_covers_90_to_98_percent_of_ok_sensors(patch_a, patch_b):
-    """Pooled over patches, probes and seeds: |error| <= 2 sigma_mm for 90-98% of ok sensors
-    (with the layout prior the error bars are conservative, up to 99%); no scene type below
-    80%."""
+    """Pooled over patches, probes and seeds: |error| <= 2 sigma_mm for 90-98% of ok sensors,
+    with and without the layout prior; no scene type below 80%."""
     inside = {False: [], True: []}
     for patch in (patch_a, patch_b):
         for probe in ("robot", "finger"):
@@ -131,30 +130,47 @@ def test_two_sigma_covers_90_to_98_percent_of_ok_sensors(patch_a, patch_b):
     assert len(inside[False]) > 150
     coverage = float(np.mean(inside[False]))
     assert 0.90 <= coverage <= 0.98, coverage
-    assert 0.90 <= float(np.mean(inside[True])) <= 0.99, float(np.mean(inside[True]))
+    assert 0.90 <= float(np.mean(inside[True])) <= 0.98, float(np.mean(inside[True]))
 
 
-def test_a_known_placement_scatter_keeps_sigma_honest_on_a_sparse_finger_plan(patch_a, patch_b):
+def test_sigma_stays_honest_on_a_sparse_finger_plan(patch_a, patch_b):
     """On a 12 x 3 finger plan the touches' placement scatter, estimated from the data, comes
-    out far below the finger's 1 mm (the sensors' fits absorb part of each offset), and
-    sigma with it. Given the scatter (`placement_sd_mm`, a floor), 2 sigma covers >= 95%."""
-    inside = {None: [], 1.0: []}
+    out far below the finger's 1 mm (the sensors' fits absorb part of each offset), and the
+    first-order sigma with it: 2 sigma covers under 90%. The bootstrap check
+    (_error_bar.py, on by default) finds that from the data alone: 90-98%. Given the
+    scatter (`placement_sd_mm`, a floor), 2 sigma covers >= 95% too."""
+    modes = {
+        "first order": {"calibrate_sigma": False},
+        "default": {},
+        "known scatter": {"placement_sd_mm": 1.0},
+    }
+    inside: dict[str, list] = {m: [] for m in modes}
     for patch in (patch_a, patch_b):
         for seed in (1, 2, 3, 4, 5, 6):
             s = session(patch, "finger", seed, 12, 3)
-            for known in inside:
-                pred = localize(s.point_logs(), patch=patch, placement_sd_mm=known)
+            for mode, params in modes.items():
+                pred = localize(s.point_logs(), patch=patch, **params)
                 e = errors(pred, s.truth)
-                inside[known] += [
+                inside[mode] += [
                     err <= 2.0 * est.sigma_mm
                     for est, err in zip(pred, e, strict=True)
                     if est.status == OK
                 ]
-    assert len(inside[1.0]) > 200
-    assert np.mean(inside[1.0]) >= 0.95, np.mean(inside[1.0])
-    assert np.mean(inside[1.0]) > np.mean(inside[None]) + 0.05, (np.mean(inside[None]),)
+    coverage = {m: float(np.mean(v)) for m, v in inside.items()}
+    assert min(len(v) for v in inside.values()) > 200
+    assert coverage["first order"] < 0.90, coverage
+    assert 0.90 <= coverage["default"] <= 0.98, coverage
+    assert coverage["known scatter"] >= 0.95, coverage
     with pytest.raises(InputError, match="placement_sd_mm must be a positive number"):
         localize(s.point_logs(), placement_sd_mm=0.0)
+    with pytest.raises(InputError, match="calibrate_sigma must be true or false"):
+        localize(s.point_logs(), calibrate_sigma="yes")
+    # The joint solver keeps its first-order sigma (the check narrowed its robot error bars
+    # below the band: docs/localizer.md).
+    joint = localize(s.point_logs(), patch=patch, solver="joint")
+    first = localize(s.point_logs(), patch=patch, solver="joint", calibrate_sigma=False)
+    assert joint.params["sigma_scale"] == 1.0
+    assert [e.sigma_mm for e in joint] == [e.sigma_mm for e in first]
 
 
 def test_sigma_grows_when_the_data_get_worse(patch_b):
