@@ -72,7 +72,8 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
         return sim, model_ok
     th = f.theta[cols]
     rho = loc._ridge_width(cols.size, th)
-    tau = loc._tau()[:, None] - f.tc[cols][None, :]
+    t = loc._tau()
+    tau = t[:, None] - f.tc[cols][None, :]
     at = loc._P[:K] + loc._dxy[:K]
     real = loc._V[:K, cols] * loc._sign
     # What the models leave of the real readings, touch by touch: noise, the part of each
@@ -100,7 +101,7 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     # There the readings stay as measured (a bump moved by its new landing is nil there).
     min_radius = loc.settings.window_spacings * loc.spacing()
     seen = pm.window(at, th, min_radius, loc.settings) > 0
-    seen &= loc._tau()[:, None] >= loc._t_from[cols][None, :]
+    seen &= t[:, None] >= loc._t_from[cols][None, :]
     # A touch judged missed had no contact, and a missing reading stays missing: those real
     # values stay, and the copy judges them again.
     keep = ~seen | loc._missed[:K, None] | ~np.isfinite(real)
