@@ -2,6 +2,7 @@
 
 * ``plot_point_log_map``: one sensor's point log map as the raw grid, the interpolated map
   and the thresholded peak with its prediction (the paper's three-step figure);
+* ``plot_point_log_maps``: every sensor's map as a tile of one mosaic, estimates marked;
 * ``plot_predictions``: every prediction versus the truth over the patch outline, with the
   probe locations and, where a method gives one, the 1-sigma error circle.
 
@@ -11,13 +12,15 @@ the global pyplot state or needs a display; localizers never import this module.
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
-from scipy.spatial import QhullError
+from scipy.spatial import QhullError, cKDTree
 
 from varskin.localization import paper
 from varskin.pointlogs import PointLogs
@@ -196,34 +199,110 @@ def plot_point_log_maps(
     path: str | Path,
     predictions: Predictions | None = None,
     outline_mm: tuple[float, float] | None = None,
-    columns: int = 5,
+    columns: int | None = None,
 ) -> Path:
     """Every sensor's point log map at a glance: probe points coloured by its response,
     with its estimate marked; a sensor whose map has no peak stands out at once."""
+    return _save(point_log_mosaic(logs, predictions, outline_mm, columns), path)
+
+
+# Width of the whole mosaic (inches), and of one tile at most.
+MOSAIC_WIDTH_IN = 16.0
+TILE_WIDTH_IN = 3.2
+
+
+def point_log_mosaic(
+    logs: PointLogs,
+    predictions: Predictions | None = None,
+    outline_mm: tuple[float, float] | None = None,
+    columns: int | None = None,
+) -> Figure:
+    """The figure of ``plot_point_log_maps``: one tile per sensor, all on one Axes.
+
+    One Axes, not one per sensor: a full Muca board's 252 subplots took 40 s to draw (each
+    Axes has its own layout and artists); offset tiles in a single scatter take about one.
+    Each tile is the patch outline (or the probes' box) with the probes coloured by that
+    sensor's own response, from its smallest reading (dark) to its largest (yellow).
+    """
     n = logs.n_sensors
+    xy = np.asarray(logs.xy_mm, float)
+    if outline_mm is not None:
+        x0, y0, w, h = 0.0, 0.0, float(outline_mm[0]), float(outline_mm[1])
+    elif len(xy):
+        (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
+        w, h = max(x1 - x0, 1.0), max(y1 - y0, 1.0)
+    else:
+        x0, y0, w, h = 0.0, 0.0, 1.0, 1.0
+    if columns is None:
+        # About as many tiles across as down the page, and at least 5.
+        columns = max(5, int(np.ceil(np.sqrt(n * h / w))))
+    columns = max(1, min(columns, n))
     rows = max(1, -(-n // columns))
-    fig = Figure(figsize=(3.2 * columns, 1.5 * rows + 0.6), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(rows, columns, sharex=True, sharey=True)).ravel()
+    tile_in = min(TILE_WIDTH_IN, MOSAIC_WIDTH_IN / columns)
+    gap_x, gap_y = 0.08 * w, 0.25 * h  # the gap above a tile holds its label
+    fig = Figure(figsize=(tile_in * columns + 0.4, tile_in * (h + gap_y) / w * rows + 0.8))
+    ax = fig.add_axes((0.01, 0.01, 0.98, 1 - 0.45 / fig.get_figheight()))
+    col = np.arange(n) % columns
+    row = np.arange(n) // columns
+    ox = col * (w + gap_x) - x0  # where each sensor's tile puts the patch origin
+    oy = -row * (h + gap_y) - y0
+
+    values = np.asarray(logs.values, float)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN column: left blank
+        lo, hi = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
+        shade = (values - lo) / np.where(hi > lo, hi - lo, 1.0)
+    # Squares as wide as the probes' typical spacing, so a grid's map reads as an image.
+    points = np.unique(xy[np.isfinite(xy).all(axis=1)], axis=0)
+    spacing = (
+        float(np.median(cKDTree(points).query(points, k=2)[0][:, 1])) if len(points) > 1 else w
+    )
+    marker = (0.9 * min(spacing, w / 4) * 72.0 * tile_in / w) ** 2
+    if len(xy):
+        ax.scatter(
+            (xy[:, 0:1] + ox).ravel(),
+            (xy[:, 1:2] + oy).ravel(),
+            c=shade.ravel(),
+            s=marker,
+            marker="s",
+            cmap="viridis",
+            vmin=0.0,
+            vmax=1.0,
+            linewidths=0,
+        )
+    ax.add_collection(
+        PatchCollection(
+            [Rectangle((ox[j] + x0, oy[j] + y0), w, h) for j in range(n)],
+            facecolor="none",
+            edgecolor="0.6",
+            linewidth=0.5,
+        )
+    )
     est = predictions.by_name() if predictions is not None else {}
-    for j, ax in enumerate(axes):
-        if j >= n:
-            ax.set_axis_off()
-            continue
-        name = logs.sensors[j]
-        col = logs.values[:, j]
-        ax.scatter(logs.xy_mm[:, 0], logs.xy_mm[:, 1], c=col, s=10, cmap="viridis", marker="s")
+    located = [
+        (ox[j] + e.x_mm, oy[j] + e.y_mm)
+        for j, name in enumerate(logs.sensors)
+        if (e := est.get(name)) is not None and e.status == OK
+    ]
+    if located:
+        ax.plot(*np.array(located).T, "r+", ms=8 * tile_in / TILE_WIDTH_IN)
+    size = max(5.0, 8.0 * tile_in / TILE_WIDTH_IN)
+    for j, name in enumerate(logs.sensors):
         e = est.get(name)
-        if e is not None and e.status == OK:
-            ax.plot([e.x_mm], [e.y_mm], "r+", ms=8)
         label = name if e is None or e.status == OK else f"{name} ({e.status})"
-        ax.set_title(label, fontsize=8)
-        if outline_mm is not None:
-            ax.set_xlim(0, outline_mm[0])
-            ax.set_ylim(0, outline_mm[1])
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=6)
-    fig.suptitle(f"point log maps ({len(logs)} touches); + = estimate", fontsize=10)
-    return _save(fig, path)
+        color = "black" if e is None or e.status == OK else "tab:red"
+        ax.text(ox[j] + x0, oy[j] + y0 + h + 0.05 * h, label, fontsize=size, color=color)
+    ax.set_xlim(x0 - gap_x / 2, ox[columns - 1] + x0 + w + gap_x / 2)
+    ax.set_ylim(oy[-1] + y0 - gap_y / 2, y0 + h + gap_y)
+    ax.set_aspect("equal")
+    ax.set_anchor("N")  # the spare height goes below the tiles, not between them and the title
+    ax.set_axis_off()
+    fig.suptitle(
+        f"point log maps ({len(logs)} touches; each tile {w:.0f} x {h:.0f} mm, colour from "
+        "the sensor's lowest to highest reading); + = estimate",
+        fontsize=10,
+    )
+    return fig
 
 
 def plot_uncertainty_vs_touches(
