@@ -3,8 +3,11 @@
 The pooled numbers of ``localizer_edge.py`` can hide a bad seed; the targets are per scene:
 robot RMS <= 0.3 mm, finger RMS <= 0.6 x the paper method's, no sensor above 2 mm. The paper
 reference runs at ppcm 16, within 0.02 mm of ppcm 128 on these scenes (docs/benchmarks.md)
-and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about a minute).
+and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about a minute);
+``--solver joint`` checks the other batch solver the same way.
 """
+
+import argparse
 
 import numpy as np
 
@@ -17,7 +20,12 @@ def rms(e):
     return float(np.sqrt((e**2).sum() / (len(e) - 1)))
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--solver", default="alternate", help="peakfit batch solver (default alternate)"
+    )
+    solver = ap.parse_args(argv).solver
     for pname in ("patch_a", "patch_b"):
         p = builtin_patch(pname)
         for probe in ("robot", "finger"):
@@ -30,7 +38,7 @@ def main() -> None:
                 for seed in range(300, 360):
                     s = simulate_session(p, uniform_grid(p, 20, 5), probe, seed)
                     L = s.point_logs()
-                    pr = localize(L, **({"patch": p} if prior else {}))
+                    pr = localize(L, solver=solver, **({"patch": p} if prior else {}))
                     e = np.linalg.norm(pr.xy() - s.truth, axis=1)
                     big += [
                         (seed, est.sensor, float(err), est.sigma_mm)
@@ -47,7 +55,7 @@ def main() -> None:
                         ratio.append(rms(e) / rms(ep))
                         paper_rms.append(rms(ep))
                 r = np.array(r)
-                line = f"{pname} {probe:6s} prior={int(prior)} seeds 300-359: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/60; seeds with a sensor >2mm: {over2}/60"
+                line = f"{solver} {pname} {probe:6s} prior={int(prior)} seeds 300-359: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/60; seeds with a sensor >2mm: {over2}/60"
                 if ratio:
                     line += f"; RMS/paper(ppcm16) median {np.median(ratio):.2f} worst {max(ratio):.2f}; seeds <=0.6: {(np.array(ratio) <= 0.6).sum()}/60"
                 print(line, flush=True)
