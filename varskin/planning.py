@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from varskin.patch import Patch
+from varskin.pointlogs import touch_spacing_mm
 from varskin.predictions import OK, R95_PER_AXIS_SD, Predictions
 
 UNIFORM = "uniform"
@@ -343,7 +344,7 @@ class AdaptivePlanner:
         mu, sigma, _ = self.sensor_state(pred)
         w = self.probe_width_mm
         # The localizer's window: a few footprints, but never under two probe spacings.
-        radius = max(self.window_widths * w, 2.0 * _spacing(done))
+        radius = max(self.window_widths * w, 2.0 * touch_spacing_mm(done))
         noise2 = self.relative_noise**2
         # Weak priors in the sensor's normalized units (height 1): position, log width (the
         # probe's footprint is known to ~25%), height and floor.
@@ -402,17 +403,6 @@ class AdaptivePlanner:
             return None
         s = np.where(allowed, self.scores(done, pred), -np.inf)
         return self._candidates[int(np.argmax(s))].copy()
-
-
-def _spacing(points: np.ndarray) -> float:
-    """Median distance of each touch to its nearest distinct one (the localizer's spacing)."""
-    if len(points) < 2:
-        return 0.0
-    d = np.hypot(points[:, None, 0] - points[None, :, 0], points[:, None, 1] - points[None, :, 1])
-    d = np.where(d > 1e-6, d, np.inf)
-    nn = d.min(axis=1)
-    nn = nn[np.isfinite(nn)]
-    return float(np.median(nn)) if nn.size else 0.0
 
 
 def _jacobian(P: np.ndarray, mu: np.ndarray, w: float, radius: float):

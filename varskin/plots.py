@@ -20,10 +20,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle, Rectangle
-from scipy.spatial import QhullError, cKDTree
+from scipy.spatial import QhullError
 
 from varskin.localization import paper
-from varskin.pointlogs import PointLogs
+from varskin.pointlogs import PointLogs, touch_spacing_mm
 from varskin.predictions import OK, Predictions
 
 
@@ -226,11 +226,14 @@ def point_log_mosaic(
     """
     n = logs.n_sensors
     xy = np.asarray(logs.xy_mm, float)
+    spacing = touch_spacing_mm(xy)
     if outline_mm is not None:
         x0, y0, w, h = 0.0, 0.0, float(outline_mm[0]), float(outline_mm[1])
     elif len(xy):
-        (x0, y0), (x1, y1) = xy.min(axis=0), xy.max(axis=0)
-        w, h = max(x1 - x0, 1.0), max(y1 - y0, 1.0)
+        # The probes' box with half a spacing around it: the edge probes' squares fit.
+        pad = max(spacing, 1.0) / 2
+        (x0, y0), (x1, y1) = xy.min(axis=0) - pad, xy.max(axis=0) + pad
+        w, h = x1 - x0, y1 - y0
     else:
         x0, y0, w, h = 0.0, 0.0, 1.0, 1.0
     if columns is None:
@@ -242,10 +245,9 @@ def point_log_mosaic(
     gap_x, gap_y = 0.08 * w, 0.25 * h  # the gap above a tile holds its label
     fig = Figure(figsize=(tile_in * columns + 0.4, tile_in * (h + gap_y) / w * rows + 0.8))
     ax = fig.add_axes((0.01, 0.01, 0.98, 1 - 0.45 / fig.get_figheight()))
-    col = np.arange(n) % columns
-    row = np.arange(n) // columns
-    ox = col * (w + gap_x) - x0  # where each sensor's tile puts the patch origin
-    oy = -row * (h + gap_y) - y0
+    left = np.arange(n) % columns * (w + gap_x)  # each sensor's tile, lower left corner
+    bottom = -(np.arange(n) // columns) * (h + gap_y)
+    dx, dy = left - x0, bottom - y0  # from patch mm to the tile's
 
     values = np.asarray(logs.values, float)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
@@ -253,15 +255,12 @@ def point_log_mosaic(
         lo, hi = np.nanmin(values, axis=0), np.nanmax(values, axis=0)
         shade = (values - lo) / np.where(hi > lo, hi - lo, 1.0)
     # Squares as wide as the probes' typical spacing, so a grid's map reads as an image.
-    points = np.unique(xy[np.isfinite(xy).all(axis=1)], axis=0)
-    spacing = (
-        float(np.median(cKDTree(points).query(points, k=2)[0][:, 1])) if len(points) > 1 else w
-    )
+    spacing = spacing or w
     marker = (0.9 * min(spacing, w / 4) * 72.0 * tile_in / w) ** 2
     if len(xy):
         ax.scatter(
-            (xy[:, 0:1] + ox).ravel(),
-            (xy[:, 1:2] + oy).ravel(),
+            (xy[:, 0:1] + dx).ravel(),
+            (xy[:, 1:2] + dy).ravel(),
             c=shade.ravel(),
             s=marker,
             marker="s",
@@ -272,7 +271,7 @@ def point_log_mosaic(
         )
     ax.add_collection(
         PatchCollection(
-            [Rectangle((ox[j] + x0, oy[j] + y0), w, h) for j in range(n)],
+            [Rectangle((left[j], bottom[j]), w, h) for j in range(n)],
             facecolor="none",
             edgecolor="0.6",
             linewidth=0.5,
@@ -280,7 +279,7 @@ def point_log_mosaic(
     )
     est = predictions.by_name() if predictions is not None else {}
     located = [
-        (ox[j] + e.x_mm, oy[j] + e.y_mm)
+        (dx[j] + e.x_mm, dy[j] + e.y_mm)
         for j, name in enumerate(logs.sensors)
         if (e := est.get(name)) is not None and e.status == OK
     ]
@@ -291,9 +290,9 @@ def point_log_mosaic(
         e = est.get(name)
         label = name if e is None or e.status == OK else f"{name} ({e.status})"
         color = "black" if e is None or e.status == OK else "tab:red"
-        ax.text(ox[j] + x0, oy[j] + y0 + h + 0.05 * h, label, fontsize=size, color=color)
-    ax.set_xlim(x0 - gap_x / 2, ox[columns - 1] + x0 + w + gap_x / 2)
-    ax.set_ylim(oy[-1] + y0 - gap_y / 2, y0 + h + gap_y)
+        ax.text(left[j], bottom[j] + 1.05 * h, label, fontsize=size, color=color)
+    ax.set_xlim(-gap_x / 2, left[columns - 1] + w + gap_x / 2)
+    ax.set_ylim(bottom[-1] - gap_y / 2, h + gap_y)
     ax.set_aspect("equal")
     ax.set_anchor("N")  # the spare height goes below the tiles, not between them and the title
     ax.set_axis_off()

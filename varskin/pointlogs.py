@@ -20,6 +20,18 @@ MAX_COORD_MM = 1e6
 MAX_TIME_S = 1e9
 
 
+def touch_spacing_mm(points: np.ndarray) -> float:
+    """Median distance of each touch to its nearest distinct one (the localizer's spacing);
+    0 with fewer than two distinct touches."""
+    if len(points) < 2:
+        return 0.0
+    d = np.hypot(points[:, None, 0] - points[None, :, 0], points[:, None, 1] - points[None, :, 1])
+    d = np.where(d > 1e-6, d, np.inf)
+    nn = d.min(axis=1)
+    nn = nn[np.isfinite(nn)]
+    return float(np.median(nn)) if nn.size else 0.0
+
+
 @dataclass(frozen=True)
 class PointLog:
     """One touch, as it arrives from a live session or a file."""
