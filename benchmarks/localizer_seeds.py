@@ -7,6 +7,11 @@ and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about a minute)
 ``--solver joint`` checks the other batch solver the same way.
 """
 
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # one core, as the other benchmarks; before numpy loads
+
 import argparse
 
 import numpy as np
