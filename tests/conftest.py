@@ -2,13 +2,6 @@
 
 from __future__ import annotations
 
-import os
-
-# The localizer's dense solves are small (tens to hundreds of unknowns): OpenBLAS's threads
-# cost more than they give there (the joint solver ran 2x slower on two cores). Pinned
-# before numpy loads, as the benchmarks pin it; subprocesses inherit it.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
 import pytest
 
 from varskin.patch import builtin_patch
