@@ -19,13 +19,9 @@ and registered frame) when that module is there.
 
 from __future__ import annotations
 
-import os
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 
-# Worker processes share the two cores; a BLAS thread pool in each would oversubscribe
-# them (measured on localizer_stress.py: 16x slower with 2 workers).
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse
 import dataclasses
 import math

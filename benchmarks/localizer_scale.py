@@ -19,12 +19,11 @@ pinned to 1 before numpy loads. Reports medians of repeated runs:
 
 from __future__ import annotations
 
-import os
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
-    os.environ[_var] = "1"
-
+# isort: split
 import argparse
+import os
 import statistics
 import subprocess
 import sys

@@ -7,11 +7,9 @@ and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about a minute)
 ``--solver joint`` checks the other batch solver the same way.
 """
 
-import os
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_var] = "1"  # one core, as the other benchmarks; before numpy loads
-
+# isort: split
 import argparse
 
 import numpy as np

@@ -14,11 +14,9 @@ ppcm 128 on these scenes, docs/benchmarks.md); its time at ppcm 128 on the first
 
 from __future__ import annotations
 
-import os
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_var] = "1"
-
+# isort: split
 import argparse
 import time
 

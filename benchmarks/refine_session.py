@@ -15,11 +15,9 @@ same: every sensor located, RMS <= 0.5 mm.
 
 from __future__ import annotations
 
-import os
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
+# isort: split
 import argparse
 import sys
 import time
