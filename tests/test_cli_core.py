@@ -258,13 +258,19 @@ def test_plots_handle_error_circles_and_sensors_without_data(tmp_path):
     assert path.stat().st_size > 5000
 
 
-def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, capsys):
+def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, tmp_path, capsys):
+    """Without the patch, seed 3's fits form a clear grid and seed 1's do not."""
     logs, _ = simulated
-    for extra, words in (
-        ([], "wires inferred from the fits (no --patch)"),
-        (["--patch", "patch_b"], "wires from the patch"),
+    clear = tmp_path / "seed3.csv"
+    grid = ["--patch", "configs/patch_b.yaml", "--grid", "20x5", "--probe", "finger"]
+    assert main(["simulate", *grid, "--seed", "3", "-o", str(clear)]) == 0
+    capsys.readouterr()
+    for path, extra, words in (
+        (clear, [], "wires inferred from the fits (no --patch)"),
+        (logs, [], "no wire prior: the fits form no clear grid (--patch gives the wires)"),
+        (logs, ["--patch", "patch_b"], "wires from the patch"),
     ):
-        assert main(["localize", str(logs), *extra]) == 0
+        assert main(["localize", str(path), *extra]) == 0
         last = capsys.readouterr().out.strip().splitlines()[-1]
         assert last.startswith("peakfit: ") and last.endswith(words), last
 

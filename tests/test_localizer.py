@@ -228,18 +228,28 @@ def _distance(a, b) -> np.ndarray:
     return d[np.isfinite(d)]
 
 
-def test_joint_solver_settles_where_alternation_crawls(patch_b, monkeypatch):
-    """A finger session: 4 alternations are far from where 40 go; 8 joint rounds are not."""
+def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch):
+    """A finger session: 4 alternations are far from where 40 go; the default's settling
+    rounds and 8 joint rounds are not. A robot session does not settle."""
     logs = session(patch_b, "finger", 0).point_logs()
-    gap = {}
-    for solver in ("alternate", "joint"):
-        default = peakfit.localize(logs, patch=patch_b, solver=solver)
-        monkeypatch.setitem(peakfit.SOLVER_ROUNDS, solver, 40)
-        gap[solver] = _distance(default, peakfit.localize(logs, patch=patch_b, solver=solver))
-    crawl, settled = gap["alternate"], gap["joint"]
+    settled = peakfit.solved(logs, patch=patch_b)
+    assert settled._settled
+    monkeypatch.setattr(peakfit, "SETTLE_ROUNDS", 0)
+    four = peakfit.localize(logs, patch=patch_b)
+    joint = peakfit.localize(logs, patch=patch_b, solver="joint")
+    monkeypatch.setitem(peakfit.SOLVER_ROUNDS, "alternate", 40)
+    monkeypatch.setitem(peakfit.SOLVER_ROUNDS, "joint", 40)
+    forty = peakfit.localize(logs, patch=patch_b)
+    crawl = _distance(four, forty)
     assert np.median(crawl) > 0.05 and crawl.max() > 0.3, (np.median(crawl), crawl.max())
-    assert np.median(settled) <= 0.03, np.median(settled)
-    assert settled.max() <= 0.1, settled.max()
+    for name, result, reference in (
+        ("settled", settled.result(), forty),
+        ("joint", joint, peakfit.localize(logs, patch=patch_b, solver="joint")),
+    ):
+        gap = _distance(result, reference)
+        assert np.median(gap) <= 0.03 and gap.max() <= 0.1, (name, np.median(gap), gap.max())
+    robot = session(patch_b, "robot", 0).point_logs()
+    assert not peakfit.solved(robot, patch=patch_b)._settled
 
 
 def test_joint_solver_is_more_accurate_with_finger_touches(patch_a, patch_b):
@@ -261,7 +271,9 @@ def test_joint_solver_is_more_accurate_with_finger_touches(patch_a, patch_b):
 def test_the_joint_solver_measures_how_far_the_touches_landed(patch_b):
     """``params["touch_placement_sd_mm"]``: the joint solver's estimate of the touches'
     placement scatter is near the simulated probe's (finger 1 mm, and 2 mm for a sloppy
-    one; robot 0.05 mm), where the default solver's sensors absorb part of it."""
+    one; robot 0.05 mm). The default solver's settling rounds bring its finger estimates
+    close (four rounds gave 0.74x and 0.54x here: the sensors absorbed part of each
+    offset). A robot's it overstates, as it does not settle."""
     from varskin.scene import ProbeModel
 
     sloppy = ProbeModel("finger", 9.0, 2.0, 0.15, 2.0)
@@ -275,7 +287,7 @@ def test_the_joint_solver_measures_how_far_the_touches_landed(patch_b):
         }
         assert 0.8 * truth <= est["joint"] <= 1.3 * truth, (truth, est)
         if truth >= 1.0:
-            assert est["alternate"] < 0.85 * truth, (truth, est)  # the documented bias
+            assert 0.8 * truth <= est["alternate"] <= 1.3 * truth, (truth, est)
 
 
 def test_unknown_solver_is_an_input_error(patch_b):

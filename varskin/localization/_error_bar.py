@@ -58,6 +58,13 @@ Z_CAP = 4.0
 # up to 0.10 of their coverage (finger, Gaussian shape: 0.92 at 0.8, 0.83 unfloored;
 # 30 seeds per 20 x 5 row, one per mismatch scene and patch, in a one-off sweep).
 SCALE_RANGE = (0.8, 3.0)
+# A settled finger solve (peakfit.SETTLE_ROUNDS) has estimated its touches' offsets nearly
+# as far as they go, and the placement scatter its first-order sigma still propagates whole
+# is then wider than what is left: the check asks for 0.60-0.63 on 20 x 5 finger grids.
+# Floored at 0.8 they covered 0.992-0.994; floored at 0.6, 0.945-0.954, and over every
+# variant of benchmarks/localizer_stress.py the finger rows cover 0.89-0.98, the Gaussian
+# and exponential shapes included (docs/benchmarks.md, "Settling finger solves").
+SETTLED_FLOOR = 0.6
 
 
 def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localizer, np.ndarray]:
@@ -139,4 +146,5 @@ def sigma_scale(loc: Localizer) -> float:
     if z2_all.size < MIN_SAMPLES:
         return 1.0
     factor = math.sqrt(float(np.mean(z2_all)) / CALIBRATED_Z2)
-    return float(np.clip(factor, *SCALE_RANGE))
+    low = SETTLED_FLOOR if loc._settled else SCALE_RANGE[0]
+    return float(np.clip(factor, low, SCALE_RANGE[1]))
