@@ -3,7 +3,7 @@
 The pooled numbers of ``localizer_edge.py`` can hide a bad seed; the targets are per scene:
 robot RMS <= 0.3 mm, finger RMS <= 0.6 x the paper method's, no sensor above 2 mm. The paper
 reference runs at ppcm 16, within 0.02 mm of ppcm 128 on these scenes (docs/benchmarks.md)
-and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about a minute);
+and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about two minutes);
 ``--solver joint`` checks the other batch solver the same way.
 """
 

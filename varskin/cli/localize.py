@@ -52,8 +52,9 @@ def register(subparsers) -> None:
         choices=["alternate", "joint"],
         help="peakfit: how the batch solve couples the sensors' fits with the touches' gain "
         "and placement: alternate between them, or take joint Gauss-Newton steps (converges; "
-        "more accurate with finger touches; about as fast as the default, as it skips the "
-        "error-bar check, whose sigma it does not fit); default alternate",
+        "more accurate with finger touches; as fast as the default with a robot and about a "
+        "third of its time with a finger, as it skips the error-bar check, whose sigma it "
+        "does not fit); default alternate",
     )
     p.add_argument(
         "--placement-sd",
@@ -73,7 +74,7 @@ def register(subparsers) -> None:
         help="peakfit: report sigma_mm as the first-order propagation gives it, without "
         "the check that re-runs the solve on sessions simulated from the fit and scales "
         "every sigma to what it measures; the batch solve is 2-3x faster, but 2 sigma then "
-        "covers 98-99%% of sensors on dense grids and 83-88%% on sparse finger plans "
+        "covers 98-100%% of sensors on dense grids and 84-89%% on sparse finger plans "
         "instead of 90-98%%; default: checked",
     )
     p.add_argument(

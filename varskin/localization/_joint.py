@@ -132,7 +132,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     # The same step limits as the fit and the touch estimate use.
     ds[:, [pm.LW, pm.LWY]] = np.clip(ds[:, [pm.LW, pm.LWY]], -0.5, 0.5)
     ds[:, [pm.SX, pm.SY]] = np.clip(ds[:, [pm.SX, pm.SY]], -0.5 * min_radius, 0.5 * min_radius)
-    lim = 4.0 * loc.place_sd_mm + 0.1
+    lim = pm.offset_limit(loc.place_sd_mm)
     dt[:, 0] = np.clip(dt[:, 0], -1.0, 1.0)
     dt[:, 1:] = np.clip(dt[:, 1:], -lim, lim)
     lo, hi = np.log(pm.MIN_WIDTH_SPACINGS * h), np.log(pm.MAX_WIDTH_SPACINGS * h)
@@ -141,7 +141,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
         th1 = theta + t * ds
         th1[:, pm.AMP] = np.maximum(th1[:, pm.AMP], 1e-6)
         th1[:, [pm.LW, pm.LWY]] = np.clip(th1[:, [pm.LW, pm.LWY]], lo, hi)
-        lg1 = np.clip(lg + t * dt[:, 0], -3.0, 1.0)
+        lg1 = np.clip(lg + t * dt[:, 0], *pm.LOG_GAIN_RANGE)
         d1 = np.clip(d + t * dt[:, 1:], -lim, lim)
         c1 = cost(th1, lg1, d1)
         if np.isfinite(c1) and c1 <= c0:

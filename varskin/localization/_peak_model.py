@@ -32,7 +32,15 @@ SX, SY, LW, LWY, AMP, B0, B1, B2, CRX, CTX = range(N_PARAMS)
 WIDTHS = slice(LW, LWY + 1)  # both log widths, as a view
 MIN_WIDTH_SPACINGS = 0.3  # a footprint much narrower than the probe spacing is unresolvable
 MAX_WIDTH_SPACINGS = 15.0
+# A touch's nuisances stay within these: its log pressing gain, and its placement offset
+# per axis (offset_limit, which also bounds one step of the offset's estimate).
+LOG_GAIN_RANGE = (-3.0, 1.0)
 RIDGE_FRACTION = 0.35  # a wire ridge's width across the wire, in footprint half widths
+
+
+def offset_limit(place_sd_mm: float) -> float:
+    """How far (mm, per axis) a touch's estimated offset may lie: 4 placement sds."""
+    return 4.0 * place_sd_mm + 0.1
 
 
 @dataclass(frozen=True)

@@ -614,12 +614,15 @@ class Localizer:
         theta[unset, pm.B0] = 0.0
         return theta
 
-    def _touch_nuisances(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _touch_nuisances(
+        self, rows: np.ndarray, relax: float = 1.0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Re-estimate gain and placement offset of touches ``rows`` from the sensor models.
 
         Every sensor that sees a touch says something about how hard and where it landed;
         pooled over sensors (Gauss-Newton with Gaussian priors of the current scales) they
-        pin the touch down. Returns the posterior variances (log gain, mean axis mm^2).
+        pin the touch down; ``relax`` > 1 stretches the step from their previous estimate.
+        Returns the posterior variances (log gain, mean axis mm^2).
         """
         f = self.fit
         cols = np.flatnonzero(
@@ -686,8 +689,8 @@ class Localizer:
                 step = np.stack(
                     [np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(H, g, strict=True)]
                 )
-            lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), -3.0, 1.0)
-            lim = 4.0 * self.place_sd_mm + 0.1
+            lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), *pm.LOG_GAIN_RANGE)
+            lim = pm.offset_limit(self.place_sd_mm)
             d = np.clip(d + np.clip(step[:, 1:], -lim, lim), -lim, lim)
         try:
             cov = np.linalg.inv(H)
@@ -695,8 +698,15 @@ class Localizer:
             cov = np.linalg.pinv(H)
         self._v_lg[rows] = cov[:, 0, 0]
         self._v_d[rows] = 0.5 * (cov[:, 1, 1] + cov[:, 2, 2])
-        self._lg[rows] = lg
-        self._dxy[rows] = d
+        if relax != 1.0:
+            # Settling (SETTLE_RELAX): each touch's step from where it was, stretched, within
+            # the same bounds. The missed-touch verdict below is judged at the plain estimate.
+            lg0, d0 = self._lg[rows], self._dxy[rows]
+            self._lg[rows] = np.clip(lg0 + relax * (lg - lg0), *pm.LOG_GAIN_RANGE)
+            self._dxy[rows] = np.clip(d0 + relax * (d - d0), -lim, lim)
+        else:
+            self._lg[rows] = lg
+            self._dxy[rows] = d
         # A touch that the models say should have lit sensors up but did not: no contact.
         # Judged without the robust weights (which would hide exactly this touch): the
         # touch's response relative to the models' prediction, over the windows it is in.
@@ -713,19 +723,14 @@ class Localizer:
 
     def _polish(self, rounds: int, relax: float = 1.0) -> None:
         """Alternate: touch nuisances given the sensors, then the sensors given the touches;
-        ``relax`` > 1 over-relaxes each round's step of the nuisances."""
+        ``relax`` > 1 over-relaxes each round's step of the touches' nuisances."""
         K = self._k
         n = len(self.sensors)
         for _ in range(rounds):
             self._shared_width()
             rows = np.arange(K)
             self._missed[:K] = False
-            lg0, d0 = self._lg[:K].copy(), self._dxy[:K].copy()
-            v_lg, v_d = self._touch_nuisances(rows)
-            if relax != 1.0:
-                lim = 4.0 * self.place_sd_mm + 0.1  # the nuisance step's own bounds
-                self._lg[:K] = np.clip(lg0 + relax * (self._lg[:K] - lg0), -3.0, 1.0)
-                self._dxy[:K] = np.clip(d0 + relax * (self._dxy[:K] - d0), -lim, lim)
+            v_lg, v_d = self._touch_nuisances(rows, relax)
             if self.params["solver"] == "joint":
                 for _ in range(JOINT_STEPS):
                     joint_step(self)
