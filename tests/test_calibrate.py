@@ -209,9 +209,11 @@ def test_kill_9_then_resume_loses_and_duplicates_nothing(full_run, tmp_path):
     _, n_full = rms_error_mm(full, truth)
     # the resumed run measured its second part anew (other noise), so: close, not equal.
     # The median, not the RMS: a few edge sensors 1-2 mm off make the RMS swing by 0.4 mm
-    # between uninterrupted runs alone.
+    # between uninterrupted runs alone. The median swings too: 0.38-0.73 mm over 12
+    # uninterrupted runs of this launch (2026-11-22; a full suite failed at 0.30 with
+    # 0.35 resumed against 0.73 uninterrupted).
     assert abs(n_resumed - n_full) <= 4
-    assert abs(median_error_mm(final, truth) - median_error_mm(full, truth)) < 0.3
+    assert abs(median_error_mm(final, truth) - median_error_mm(full, truth)) < 0.45
     # sensor by sensor, the two answers agree within their own error bars
     a, b = final.by_name(), full.by_name()
     outside = 0

@@ -259,15 +259,16 @@ def test_plots_handle_error_circles_and_sensors_without_data(tmp_path):
 
 
 def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, tmp_path, capsys):
-    """Without the patch, seed 3's fits form a clear grid and seed 1's do not."""
+    """Without the patch, the 20 x 5 finger scene's fits form a clear grid and a sparse
+    12 x 3 one's do not."""
     logs, _ = simulated
-    clear = tmp_path / "seed3.csv"
-    grid = ["--patch", "configs/patch_b.yaml", "--grid", "20x5", "--probe", "finger"]
-    assert main(["simulate", *grid, "--seed", "3", "-o", str(clear)]) == 0
+    sparse = tmp_path / "sparse.csv"
+    grid = ["--patch", "configs/patch_b.yaml", "--grid", "12x3", "--probe", "finger"]
+    assert main(["simulate", *grid, "--seed", "0", "-o", str(sparse)]) == 0
     capsys.readouterr()
     for path, extra, words in (
-        (clear, [], "wires inferred from the fits (no --patch)"),
-        (logs, [], "no wire prior: the fits form no clear grid (--patch gives the wires)"),
+        (logs, [], "wires inferred from the fits (no --patch)"),
+        (sparse, [], "no wire prior: the fits form no clear grid (--patch gives the wires)"),
         (logs, ["--patch", "patch_b"], "wires from the patch"),
     ):
         assert main(["localize", str(path), *extra]) == 0
@@ -278,20 +279,22 @@ def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, tmp_p
 def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_path):
     """``--first-order-sigma`` gives the sigmas of ``calibrate_sigma=False``, the same
     positions, and sigmas that differ from the checked default (on this finger scene the
-    check narrows them)."""
+    check narrows them). With the patch: without it, the wires inferred may differ."""
     from varskin.localization import localize
+    from varskin.patch import builtin_patch
     from varskin.pointlog_csv import read_point_logs
 
     logs, _ = simulated
     out, scale = {}, {}
     for name, extra in (("checked", []), ("first", ["--first-order-sigma"])):
+        extra = [*extra, "--patch", "patch_b"]
         path = tmp_path / f"{name}.json"
         assert main(["localize", str(logs), "-q", "--json", str(path), *extra]) == 0
         saved = json.loads(path.read_text())
         out[name] = {e["sensor"]: e for e in saved["sensors"]}
         scale[name] = saved["params"]["sigma_scale"]
     assert scale["first"] == 1.0
-    direct = localize(read_point_logs(logs), calibrate_sigma=False)
+    direct = localize(read_point_logs(logs), calibrate_sigma=False, patch=builtin_patch("patch_b"))
     for e in direct:
         got = out["first"][e.sensor]
         assert got["status"] == e.status

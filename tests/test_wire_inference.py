@@ -83,6 +83,65 @@ def test_a_loose_sensor_far_off_gets_no_wire(patch_b):
     assert ((gx >= 0) & (gy >= 0)).sum() >= 25
 
 
+@pytest.mark.parametrize(
+    ("beyond_mm", "sd_mm", "joins"),
+    [
+        # Patch B finger, seed 338: S1 fitted 5 mm beyond the last row with a 3.1 mm sd
+        # (over half the ~6 mm gap between rows), 3.97 mm off when it kept no wire.
+        (6.0, 3.3, True),
+        # A fit flung far out: 22 mm beyond with a 9 mm sd is within reach of that row only,
+        # but at 2.4 sd from it against 3.1 from the next: far from 100 to 1.
+        (21.6, 9.0, False),
+    ],
+)
+def test_a_loose_sensor_beyond_the_last_row_joins_it_only_at_clear_odds(
+    patch_b, beyond_mm, sd_mm, joins
+):
+    tx, rx = wires_of(patch_b)
+    rng = np.random.default_rng(7)
+    xy = patch_b.design_xy + rng.normal(0, 0.2, patch_b.design_xy.shape)
+    sd = np.full((len(tx), 2), 0.2)
+    corner = 0  # S1: first TX wire, the RX wire of the largest y
+    assert rx[corner] == 0 and xy[rx == 0, 1].mean() > xy[rx == 1, 1].mean()
+    xy[corner, 1] = patch_b.design_xy[corner, 1] + beyond_mm
+    sd[corner, 1] = sd_mm
+    located = np.ones(len(tx), bool)
+    located[corner] = False
+    gx, gy = infer_wires(xy, sd, located, ~located, 0.25)
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    if joins:
+        assert gy[corner] == gy[3]  # S4, on the same RX wire
+        assert gx[corner] == gx[1]  # and its column, S2's
+    else:
+        assert gy[corner] == -1 and gx[corner] == -1
+
+
+def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, monkeypatch):
+    """A settled finger solve's first-order sds are wider than its errors by the error-bar
+    check's factor (0.6 here); at them this scene's rows blur and no grid is clear. At the
+    checked sds the grid is, and it is the simulator's."""
+    from varskin.localization import _statuses
+    from varskin.localization.peakfit import solved
+
+    tx, rx = wires_of(patch_b)
+    s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "finger", 1)
+    loc = solved(s.point_logs())
+    assert loc._settled and loc._sigma_scale < 0.7
+    seen = []
+
+    def spy(*args):
+        seen.append(infer_wires(*args))
+        return seen[-1]
+
+    monkeypatch.setattr(_statuses, "infer_wires", spy)
+    assert _statuses.judge(loc)[4]["wires"] == "inferred"
+    gx, gy = seen[-1]
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert (gx >= 0).mean() >= 0.9 and (gy >= 0).all()
+    loc._sigma_scale = 1.0  # the first-order sds alone
+    assert _statuses.judge(loc)[4]["wires"] == "none"
+
+
 def test_no_grid_means_no_wires():
     rng = np.random.default_rng(4)
     xy = rng.uniform(0, 100, (30, 2))  # scattered: no rows, no columns

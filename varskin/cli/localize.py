@@ -75,7 +75,8 @@ def register(subparsers) -> None:
         "the check that re-runs the solve on sessions simulated from the fit and scales "
         "every sigma to what it measures; the batch solve is 2-3x faster, but 2 sigma then "
         "covers 98-100%% of sensors on dense grids and 84-89%% on sparse finger plans "
-        "instead of 90-98%%; default: checked",
+        "instead of 90-98%%; without --patch the wires inferred for a finger session, and "
+        "so its positions, may differ; default: checked",
     )
     p.add_argument(
         "--patch",

@@ -17,7 +17,8 @@ from the fit, the residuals of one touch all with one random sign (a wild bootst
 touch). The same solve runs on them (without this check), and the errors of its ``ok``
 sensors against the models they came from, in units of their own sigmas, say how far off
 the sigmas are. Every sigma is then scaled by one factor per solve, so the ranking of
-sensors by uncertainty stays the solver's own; positions do not change. Deterministic
+sensors by uncertainty stays the solver's own; positions do not change (but for the wires
+a settled solve infers without a patch, _statuses._inferred_wires). Deterministic
 (seeded by the session's readings), so a batch solve and the live session's ``result()``
 agree exactly. On 20 x 5 and 12 x 3 grids, 2 sigma then covers 0.95-0.98 of ``ok`` sensors
 (benchmarks/localizer_coverage.py, docs/benchmarks.md).

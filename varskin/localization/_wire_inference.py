@@ -20,8 +20,8 @@ wire, where no answer leaves them as they were.
   its centre is CUT_SDS typical sds from its neighbours' and its sensors are within
   REACH_SDS of it; an unclear column's sensors keep only their row.
 * Loose sensors (set aside, on an incomplete row, or too loose to be located) join the
-  one row or column within JOIN_SDS of them, if every other is beyond REACH_SDS and their
-  sd is under half the gap to the next one.
+  one row or column within JOIN_SDS of them, if every other is beyond REACH_SDS and the
+  odds for it against the next nearest are at least JOIN_ODDS to 1.
 * Refused: a located sensor out of reach of every row (a row was missed), a row with more
   sensors than columns, or complete rows that leave most sensors in unclear columns (rows
   that merge two wires rank the sensors of one column apart).
@@ -35,6 +35,7 @@ the comments below name those scenes.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -43,6 +44,14 @@ CUT_SDS = 4.0  # a gap between wires is at least this many sds of the sensors' p
 JOIN_SDS = 2.5  # neighbours on one wire (or a loose sensor and its wire) are closer, in sds
 REACH_SDS = 3.0  # every sensor of a wire lies within this many sds of its centre
 PRECISE_FACTOR = 2.0  # loose: sd above this multiple of the typical (median) sd
+# A loose sensor joins a wire only at these odds against the next nearest (Gaussian in its
+# sd). Between two wires they ask more than the reach rules (2.5 against 3 sds is 4 to 1);
+# beyond the outermost wire they bound how loose a sensor may be (sd up to ~0.7 of the
+# gap, at JOIN_SDS beyond). They replace "sd under half the gap": between two wires the
+# reach rules already keep the sd under a third of it, so that rule refused, in effect,
+# only sensors beyond the outermost wire, the ones the prior is for (Patch B finger, seed
+# 338: S1 3.1 mm sd, 5 mm beyond the last row, 3.97 mm off; joined, 0.67 mm).
+JOIN_ODDS = 100.0
 
 
 class _Family(NamedTuple):
@@ -63,18 +72,16 @@ class _Family(NamedTuple):
 
     def join(self, v: float, sd_v: float, taken: np.ndarray | None = None) -> int:
         """The wire a sensor at ``v`` joins, or -1: the one within JOIN_SDS while every other
-        (but the ``taken``) is beyond REACH_SDS, with the sd under half the gap to the next
-        wire (a looser fit cannot tell them apart)."""
-        both = np.hypot(sd_v, self.sd)
-        z = np.abs(self.centre - v) / both
+        (but the ``taken``) is beyond REACH_SDS, at JOIN_ODDS against the next nearest."""
+        z = np.abs(self.centre - v) / np.hypot(sd_v, self.sd)
         if taken is not None:
             z[taken] = np.inf
         near = np.flatnonzero(z <= REACH_SDS)
         if near.size != 1 or z[near[0]] >= JOIN_SDS:
             return -1
         j = int(near[0])
-        gap = np.abs(np.delete(self.centre, j) - self.centre[j])
-        if gap.size and 2.0 * both[j] >= gap.min():
+        others = np.delete(z, j)
+        if others.size and others.min() ** 2 - z[j] ** 2 < 2.0 * math.log(JOIN_ODDS):
             return -1
         return j if self.clear[j] else -1
 
