@@ -8,6 +8,9 @@ of the finish. Median of ``--repeat`` draws (PNG written to a temporary folder).
 Run as ``python benchmarks/report_plots.py``.
 """
 
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
+
+# isort: split
 import argparse
 import tempfile
 import time

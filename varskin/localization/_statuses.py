@@ -185,15 +185,22 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     return status, xy, sigma, snr, params
 
 
-def _inferred_wires(loc: Localizer, xy, sd, ok, loose, floor):
+def _inferred_wires(
+    loc: Localizer,
+    xy: np.ndarray,
+    sd: np.ndarray,
+    ok: np.ndarray,
+    loose: np.ndarray,
+    floor: float,
+) -> tuple[np.ndarray, np.ndarray] | None:
     """``infer_wires`` for a settled solve at the sds the error-bar check measured, if it
     narrowed them; else, or if no grid is clear there, at the first-order sds ``sd``.
 
     A settled finger solve's first-order sds are up to 1.7x its errors (_error_bar.py's
-    factor is 0.6-0.75 on Patch B finger scenes), and rows 6 mm apart blurred at them: Patch B finger 20 x 5 scenes declined 13 of 60, and 4
-    kept a sensor above 2 mm. At the measured sds (and with the join odds of
-    _wire_inference), 1 declines and none keeps one (benchmarks/wire_inference.py,
-    localizer_seeds.py). The wider sds stay the fallback:
+    factor is 0.6-0.75 on Patch B finger scenes), and rows 6 mm apart blurred at them:
+    Patch B finger 20 x 5 scenes declined 13 of 60, and 4 kept a sensor above 2 mm. At the
+    measured sds (and with the join odds of _wire_inference), 1 declines and none keeps one
+    (benchmarks/wire_inference.py, localizer_seeds.py). The wider sds stay the fallback:
     their reach rules let a sensor that one factor under-sizes (a corner) stay on its wire.
     Not for a robot solve: narrowed by its 0.8 factor, its scattered touches on Patch B
     gave 3 wrong groupings in 60 scenes instead of 1. A live update judges with the last
