@@ -1,7 +1,7 @@
 """The robot scenes of ``localizer_seeds.py`` that miss 0.3 mm RMS, refined by the planner.
 
-Why: on the paper's 20 x 5 grid (cell centres) the outermost TX wires lie at or past the
-last probe column, where each map shows one flank only, and a few scenes in a hundred end
+Why: on the paper's 20 x 5 grid (cell centres) Patch B's outermost TX wires lie near the
+first and last probe columns or past the last, where a map shows one flank only, and a few scenes in a hundred end
 above 0.3 mm RMS from those sensors alone (docs/benchmarks.md). Their sigmas say so. This
 measures what a lab does about it: refine the session (``varskin calibrate --resume S.db
 --refine N``), i.e. the adaptive planner, given the grid as its first touches, adds
