@@ -14,6 +14,7 @@ import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loa
 import argparse
 
 import numpy as np
+from localizer_live import seed_range
 
 from varskin.localization import localize
 from varskin.patch import builtin_patch
@@ -22,11 +23,6 @@ from varskin.simulate import simulate_session, uniform_grid
 
 def rms(e):
     return float(np.sqrt((e**2).sum() / (len(e) - 1)))
-
-
-def seed_range(text: str) -> range:
-    lo, _, hi = text.partition("-")
-    return range(int(lo), int(hi or lo) + 1)
 
 
 def main(argv: list[str] | None = None) -> None:

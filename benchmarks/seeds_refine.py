@@ -22,7 +22,8 @@ import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loa
 import argparse
 
 import numpy as np
-from localizer_seeds import rms, seed_range
+from localizer_live import seed_range
+from localizer_seeds import rms
 
 from varskin.localization.peakfit import solved
 from varskin.patch import builtin_patch
