@@ -5,7 +5,10 @@ robot RMS <= 0.3 mm, finger RMS <= 0.6 x the paper method's, no sensor above 2 m
 reference runs at ppcm 16, within 0.02 mm of ppcm 128 on these scenes (docs/benchmarks.md)
 and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about three minutes);
 ``--solver joint`` checks the other batch solver the same way, ``--seeds 360-559`` other
-scenes, ``--patch patch_b`` one patch only (two processes can split the patches).
+scenes, ``--patch patch_b`` one patch only (two processes can split the patches),
+``--probe robot`` one probe only. ``--grid plan`` probes the 20 x 5 grid ``varskin
+calibrate`` plans (from the 3 mm margin to the far one) instead of the cell centres the
+targets were set on: its outer columns lie 0.8 mm nearer the patch's ends.
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
@@ -18,6 +21,7 @@ from localizer_live import seed_range
 
 from varskin.localization import localize
 from varskin.patch import builtin_patch
+from varskin.planning import uniform_points
 from varskin.simulate import simulate_session, uniform_grid
 
 
@@ -32,15 +36,24 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--seeds", type=seed_range, default=range(300, 360), help="default 300-359")
     ap.add_argument("--patch", choices=("patch_a", "patch_b"), help="one patch (default both)")
+    ap.add_argument("--probe", choices=("robot", "finger"), help="one probe (default both)")
+    ap.add_argument(
+        "--grid",
+        choices=("cells", "plan"),
+        default="cells",
+        help="cells: the 20 x 5 cell centres (default); plan: varskin calibrate's grid, "
+        "3 mm margin",
+    )
     args = ap.parse_args(argv)
     solver, seeds = args.solver, args.seeds
-    span = f"seeds {seeds[0]}-{seeds[-1]}"
+    span = f"seeds {seeds[0]}-{seeds[-1]}" + (" plan grid" if args.grid == "plan" else "")
     for pname in (args.patch,) if args.patch else ("patch_a", "patch_b"):
         p = builtin_patch(pname)
         # The outermost TX wires lie at the probes' hull: one-sided maps (issue 3, point 5).
         tx = np.array([sensor.tx for sensor in p.sensors])
         inner = (tx > 0) & (tx < len(p.tx_x_mm) - 1)
-        for probe in ("robot", "finger"):
+        grid = uniform_points(p, 20, 5, 3.0) if args.grid == "plan" else uniform_grid(p, 20, 5)
+        for probe in (args.probe,) if args.probe else ("robot", "finger"):
             for prior in (False, True):
                 r = []
                 ratio = []
@@ -49,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
                 paper_rms = []
                 inner_rms = []
                 for seed in seeds:
-                    s = simulate_session(p, uniform_grid(p, 20, 5), probe, seed)
+                    s = simulate_session(p, grid, probe, seed)
                     L = s.point_logs()
                     pr = localize(L, solver=solver, **({"patch": p} if prior else {}))
                     e = np.linalg.norm(pr.xy() - s.truth, axis=1)
