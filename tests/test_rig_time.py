@@ -140,9 +140,9 @@ def moves(tcp_log: np.ndarray, still_m_s: float = 1e-4) -> list[tuple[float, np.
 def test_scaled_sim_touch_matches_the_model_and_keeps_force_and_contact():
     """The shipped simulated launch at its time scale: three plan touches through the real
     ur-rtde client. In the controller's simulated seconds, every move (travel, descent,
-    retract) takes what the model says and the hold lasts at least the settle and dwell; the
-    controller ran faster than real time; and the scaled clock held the force and found the
-    skin as a real-time controller does.
+    retract) takes what the model says and the dwell lasts dwell_s; the controller ran
+    faster than real time; and the scaled clock held the force and found the skin as a
+    real-time controller does.
 
     What is not checked here is the client's share: ur-rtde's handshakes run on the host
     clock, so their cost in simulated seconds grows with the host's load
@@ -179,14 +179,13 @@ def test_scaled_sim_touch_matches_the_model_and_keeps_force_and_contact():
         contact_depth_m=0.5 / stiffness_n_per_m,
         press_depth_m=spec.target_force_n / stiffness_n_per_m,
     )
-    travel, descent, retract, press = [], [], [], []
+    travel, descent, retract = [], [], []
     for duration, d in moves(tcp):
         if np.hypot(d[0], d[1]) > 1e-3:
             travel.append(duration)
         elif abs(d[2]) > 0.005:
             (descent if d[2] < 0 else retract).append(duration)
-        else:  # force mode pressing the skin to the target force: part of the hold
-            press.append(duration)
+        # the rest: force mode pressing the skin to the target force, part of the hold
     assert len(travel) == len(descent) == len(retract) == 3
     assert sum(travel) == pytest.approx(physics.travel_s, rel=0.05)
     assert sum(descent) == pytest.approx(physics.descent_s, rel=0.05)
