@@ -52,7 +52,7 @@ def main(argv: list[str] | None = None) -> None:
         # The outermost TX wires lie at the probes' hull: one-sided maps (issue 3, point 5).
         tx = np.array([sensor.tx for sensor in p.sensors])
         inner = (tx > 0) & (tx < len(p.tx_x_mm) - 1)
-        grid = uniform_points(p, 20, 5, 3.0) if args.grid == "plan" else uniform_grid(p, 20, 5)
+        grid = uniform_points(p, 20, 5) if args.grid == "plan" else uniform_grid(p, 20, 5)
         for probe in (args.probe,) if args.probe else ("robot", "finger"):
             for prior in (False, True):
                 r = []
