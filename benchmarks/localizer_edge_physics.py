@@ -8,8 +8,8 @@ switched off at a time (the drift of the offsets, the sensors' footprint spread,
 coupling along the wires, the noise, the probe's placement and force scatter), and all of
 them at once, and prints per variant the median and worst RMS, the seeds over 0.3 mm, and
 the RMS and 2-sigma coverage of the first wire, the last wire and the others. Run as
-``python benchmarks/localizer_edge_physics.py [--seeds 360-439]`` (about 40 s per variant
-on one core; deterministic, so no repeats).
+``python benchmarks/localizer_edge_physics.py [--seeds 360-439]`` (about half a
+minute per variant on one core; deterministic, so no repeats).
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
