@@ -6,7 +6,7 @@ last TX wire (``localizer_seeds.py --grid plan``). This asks whether the method 
 are short there: it re-runs the same seeded scenes with one part of the simulated physics
 switched off at a time (the drift of the offsets, the sensors' footprint spread, the
 coupling along the wires, the noise, the probe's placement and force scatter), and all of
-them at once, and prints per variant the median and worst RMS, the seeds over 0.3 mm, and
+them at once (the noise cut to a tenth), and prints per variant the median and worst RMS, the seeds over 0.3 mm, and
 the RMS and 2-sigma coverage of the first wire, the last wire and the others. Run as
 ``python benchmarks/localizer_edge_physics.py [--seeds 360-439]`` (about half a
 minute per variant on one core; deterministic, so no repeats).
