@@ -20,6 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 from localizer_live import seed_range
+from localizer_seeds import rms
 
 from varskin.localization import localize
 from varskin.patch import builtin_patch
@@ -49,11 +50,6 @@ VARIANTS = (
 )
 
 
-def rms(e: np.ndarray) -> float:
-    e = e[np.isfinite(e)]
-    return float(np.sqrt((e**2).sum() / max(len(e) - 1, 1)))
-
-
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=seed_range, default=range(360, 440), help="default 360-439")
@@ -79,12 +75,12 @@ def main(argv: list[str] | None = None) -> None:
             sigma = np.array([np.nan if p.sigma_mm is None else p.sigma_mm for p in pred])
             err.append(e)
             inside.append(e <= 2 * sigma)
-            scene_rms.append(rms(e))
+            scene_rms.append(rms(e[np.isfinite(e)]))
         err, inside, r = np.array(err), np.array(inside), np.array(scene_rms)
         parts = []
         for label, g in groups.items():
             e, ok = err[:, g], np.isfinite(err[:, g])
-            parts.append(f"{label} {rms(e.ravel()):.3f} ({inside[:, g][ok].mean():.2f})")
+            parts.append(f"{label} {rms(e[ok]):.3f} ({inside[:, g][ok].mean():.2f})")
         print(
             f"{name:17s} median {np.median(r):.3f} worst {r.max():.3f} mm, "
             f"seeds > 0.3 mm: {(r > 0.3).sum()}/{len(r)}; " + "; ".join(parts),

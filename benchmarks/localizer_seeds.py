@@ -66,10 +66,11 @@ def main(argv: list[str] | None = None) -> None:
                     s = simulate_session(p, grid, probe, seed)
                     L = s.point_logs()
                     pr = localize(L, solver=solver, **({"patch": p} if prior else {}))
-                    declined += pr.params.get("wires") == "none"
+                    wires = pr.params.get("wires")
+                    declined += wires == "none"
                     e = np.linalg.norm(pr.xy() - s.truth, axis=1)
                     big += [
-                        (seed, est.sensor, float(err), est.sigma_mm, pr.params.get("wires"))
+                        (seed, est.sensor, float(err), est.sigma_mm, wires)
                         for est, err in zip(pr, e, strict=True)
                         if np.isfinite(err) and err > 2
                     ]
