@@ -9,6 +9,8 @@ scenes, ``--patch patch_b`` one patch only (two processes can split the patches)
 ``--probe robot`` one probe only. ``--grid plan`` probes the 20 x 5 grid ``varskin
 calibrate`` plans (from the 3 mm margin to the far one) instead of the cell centres the
 targets were set on: its outer columns lie 0.8 mm nearer the patch's ends.
+``--settle-rounds 40`` lets finger-like solves settle for 40 rounds instead of 12
+(``localizer_settle.py`` times that).
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
@@ -44,8 +46,14 @@ def main(argv: list[str] | None = None) -> None:
         help="cells: the 20 x 5 cell centres (default); plan: varskin calibrate's grid, "
         "3 mm margin",
     )
+    ap.add_argument(
+        "--settle-rounds",
+        type=int,
+        help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
+    )
     args = ap.parse_args(argv)
     solver, seeds = args.solver, args.seeds
+    extra = {} if args.settle_rounds is None else {"settle_rounds": args.settle_rounds}
     span = f"seeds {seeds[0]}-{seeds[-1]}" + (" plan grid" if args.grid == "plan" else "")
     for pname in (args.patch,) if args.patch else ("patch_a", "patch_b"):
         p = builtin_patch(pname)
@@ -65,7 +73,7 @@ def main(argv: list[str] | None = None) -> None:
                 for seed in seeds:
                     s = simulate_session(p, grid, probe, seed)
                     L = s.point_logs()
-                    pr = localize(L, solver=solver, **({"patch": p} if prior else {}))
+                    pr = localize(L, solver=solver, **extra, **({"patch": p} if prior else {}))
                     wires = pr.params.get("wires")
                     declined += wires == "none"
                     e = np.linalg.norm(pr.xy() - s.truth, axis=1)
@@ -86,7 +94,8 @@ def main(argv: list[str] | None = None) -> None:
                         paper_rms.append(rms(ep))
                 r = np.array(r)
                 n = len(seeds)
-                line = f"{solver} {pname} {probe:6s} prior={int(prior)} {span}: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/{n}; seeds with a sensor >2mm: {over2}/{n}"
+                label = solver + ("" if not extra else f" settle {args.settle_rounds}")
+                line = f"{label} {pname} {probe:6s} prior={int(prior)} {span}: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/{n}; seeds with a sensor >2mm: {over2}/{n}"
                 if declined:
                     line += f"; wires none on {declined}/{n}"
                 if ratio:

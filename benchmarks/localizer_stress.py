@@ -10,7 +10,7 @@ questions per variant: how much better than the paper's method is peakfit, and i
 status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
-[--solver alternate|joint] [--prior patch|inferred|none]`` (31 s on the 2-core VM with 2
+[--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]`` (31 s on the 2-core VM with 2
 jobs). Peakfit runs with the layout prior from the patch (``patch=``), as ``varskin
 calibrate`` runs it, unless ``--prior`` says otherwise; the paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
@@ -90,7 +90,7 @@ def _rms(e: np.ndarray) -> float:
 
 
 def one_scene(job):
-    variant, pname, probe, seed, solver, prior = job
+    variant, pname, probe, seed, solver, prior, settle = job
     params, grid = VARIANTS[variant]
     patch = builtin_patch(pname)
     model = ProbeModel.named(probe)
@@ -100,6 +100,8 @@ def one_scene(job):
     s = simulate_session(patch, _points(patch, grid, seed), model, seed, params)
     logs = s.point_logs()
     kw = {"patch": patch} if prior == "patch" else {"infer_wires": prior == "inferred"}
+    if settle is not None:
+        kw["settle_rounds"] = settle
     pf = localize(logs, solver=solver, **kw)
     pp = localize(logs, method="paper", ppcm=16)
     ef = np.linalg.norm(pf.xy() - s.truth, axis=1)
@@ -143,6 +145,11 @@ def main() -> None:
         help="peakfit's layout prior: from the patch (default, as `varskin calibrate` runs "
         "it), from wires inferred without a patch (`varskin localize` without --patch), or none",
     )
+    ap.add_argument(
+        "--settle-rounds",
+        type=int,
+        help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
+    )
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
     names = _variant_names(args.only) or list(VARIANTS)
@@ -150,7 +157,7 @@ def main() -> None:
     if unknown:
         ap.error(f"--only: unknown variant(s) {unknown}; known: {', '.join(VARIANTS)}")
     jobs = [
-        (v, pn, pr, seed, args.solver, args.prior)
+        (v, pn, pr, seed, args.solver, args.prior, args.settle_rounds)
         for v in names
         for pn in ("patch_a", "patch_b")
         for pr in ("robot", "finger")

@@ -308,3 +308,34 @@ def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_pat
     ratio = [out["checked"][s]["sigma_mm"] / out["first"][s]["sigma_mm"] for s in both]
     assert np.ptp(ratio) < 1e-6 and abs(ratio[0] - 1.0) > 0.05, ratio[:3]
     assert ratio[0] == pytest.approx(scale["checked"], rel=1e-9)
+
+
+def test_localize_settle_rounds_reaches_the_solver_and_refuses_bad_counts(
+    simulated, tmp_path, capsys
+):
+    """``--settle-rounds N`` gives ``localize(..., settle_rounds=N)``'s positions (on this
+    finger scene 0 rounds differ from the default's 12); a negative count or one the paper
+    method has no use for is a one-line error."""
+    from varskin.localization import localize
+    from varskin.patch import builtin_patch
+    from varskin.pointlog_csv import read_point_logs
+
+    logs, _ = simulated
+    path = tmp_path / "zero.json"
+    args = ["localize", str(logs), "-q", "--patch", "patch_b", "--first-order-sigma"]
+    assert main([*args, "--settle-rounds", "0", "--json", str(path)]) == 0
+    got = {e["sensor"]: e for e in json.loads(path.read_text())["sensors"]}
+    kw = {"calibrate_sigma": False, "patch": builtin_patch("patch_b")}
+    zero = localize(read_point_logs(logs), settle_rounds=0, **kw)
+    default = localize(read_point_logs(logs), **kw)
+    moved = 0.0
+    for e, d in zip(zero, default, strict=True):
+        assert got[e.sensor]["x_mm"] == e.x_mm and got[e.sensor]["y_mm"] == e.y_mm
+        if e.x_mm is not None and d.x_mm is not None:
+            moved = max(moved, abs(e.x_mm - d.x_mm), abs(e.y_mm - d.y_mm))
+    assert moved > 0.01
+    capsys.readouterr()
+    for bad in (["--settle-rounds", "-1"], ["--method", "paper", "--settle-rounds", "40"]):
+        assert main(["localize", str(logs), "-q", *bad]) == 2
+        err = capsys.readouterr().err
+        assert "settle_rounds" in err and "Traceback" not in err and err.count("\n") == 1, err

@@ -234,12 +234,13 @@ def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch
     logs = session(patch_b, "finger", 0).point_logs()
     settled = peakfit.solved(logs, patch=patch_b)
     assert settled._settled
-    monkeypatch.setattr(peakfit, "SETTLE_ROUNDS", 0)
-    four = peakfit.localize(logs, patch=patch_b)
+    unsettled = peakfit.solved(logs, patch=patch_b, settle_rounds=0)
+    assert not unsettled._settled
+    four = unsettled.result()
     joint = peakfit.localize(logs, patch=patch_b, solver="joint")
     monkeypatch.setitem(peakfit.SOLVER_ROUNDS, "alternate", 40)
     monkeypatch.setitem(peakfit.SOLVER_ROUNDS, "joint", 40)
-    forty = peakfit.localize(logs, patch=patch_b)
+    forty = peakfit.localize(logs, patch=patch_b, settle_rounds=0)
     crawl = _distance(four, forty)
     assert np.median(crawl) > 0.05 and crawl.max() > 0.3, (np.median(crawl), crawl.max())
     for name, result, reference in (
@@ -250,6 +251,30 @@ def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch
         assert np.median(gap) <= 0.03 and gap.max() <= 0.1, (name, np.median(gap), gap.max())
     robot = session(patch_b, "robot", 0).point_logs()
     assert not peakfit.solved(robot, patch=patch_b)._settled
+
+
+def test_settle_rounds_is_checked_and_only_settles_finger_like_alternate_solves(patch_b):
+    """``settle_rounds`` takes a whole number >= 0; each value changes a finger solve and
+    none changes a robot's (which does not settle) or a `joint` one's."""
+    finger = session(patch_b, "finger", 0).point_logs()
+    for bad in (-1, 2.5, True, "12"):
+        with pytest.raises(InputError, match="settle_rounds must be a whole number >= 0"):
+            peakfit.localize(finger, settle_rounds=bad)
+    kw = {"patch": patch_b, "calibrate_sigma": False}
+    by_rounds = {r: peakfit.localize(finger, settle_rounds=r, **kw).xy() for r in (0, 1, 12)}
+    assert np.nanmax(np.abs(by_rounds[0] - by_rounds[1])) > 0.01
+    assert np.nanmax(np.abs(by_rounds[1] - by_rounds[12])) > 0.01
+    robot = session(patch_b, "robot", 0).point_logs()
+    assert np.array_equal(
+        peakfit.localize(robot, settle_rounds=0, **kw).xy(),
+        peakfit.localize(robot, settle_rounds=40, **kw).xy(),
+        equal_nan=True,
+    )
+    assert np.array_equal(
+        peakfit.localize(finger, solver="joint", settle_rounds=0, **kw).xy(),
+        peakfit.localize(finger, solver="joint", settle_rounds=40, **kw).xy(),
+        equal_nan=True,
+    )
 
 
 def test_joint_solver_is_more_accurate_with_finger_touches(patch_a, patch_b):

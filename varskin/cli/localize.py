@@ -67,6 +67,15 @@ def register(subparsers) -> None:
         "default none (estimated only)",
     )
     p.add_argument(
+        "--settle-rounds",
+        dest="settle_rounds",
+        type=int,
+        metavar="N",
+        help="peakfit: extra over-relaxed alternations a finger-like solve takes to settle "
+        "(0: none); 40 lowers Patch B finger errors at the outermost wires, at about twice "
+        "the time of the default (docs/benchmarks.md); default 12",
+    )
+    p.add_argument(
         "--first-order-sigma",
         dest="calibrate_sigma",
         action="store_const",
@@ -127,7 +136,15 @@ def method_params(args) -> dict:
     """Only the parameters the user actually set."""
     return {
         k: getattr(args, k)
-        for k in ("eta", "ppcm", "area", "solver", "placement_sd_mm", "calibrate_sigma")
+        for k in (
+            "eta",
+            "ppcm",
+            "area",
+            "solver",
+            "settle_rounds",
+            "placement_sd_mm",
+            "calibrate_sigma",
+        )
         if getattr(args, k) is not None
     }
 

@@ -93,6 +93,10 @@ DEFAULTS: dict = {
     # "joint": sensors and touch nuisances take joint Gauss-Newton steps (converges);
     # "alternate": block coordinate descent between them only (the default).
     "solver": "alternate",
+    # Rounds a finger-like `alternate` solve takes to settle (SETTLE_ROUNDS); 0: none. More
+    # reach nearer the alternation's fixed point at the cost of time (docs/benchmarks.md,
+    # "How far finger solves settle").
+    "settle_rounds": SETTLE_ROUNDS,
     # Per-axis scatter (mm) of where the probe really lands, if known (a finger ~1, a robot
     # ~0.05): a floor for the scatter estimated from the data, which sparse plans
     # underestimate (docs/localizer.md, Known limits). None: estimated only.
@@ -157,6 +161,9 @@ def check_params(params: dict) -> dict:
             raise InputError(f"{NAME}: {key} must be true or false, got {out[key]!r}")
     if out["inverted"] not in (None, True, False):
         raise InputError(f"{NAME}: inverted must be true, false or unset, got {out['inverted']!r}")
+    rounds = out["settle_rounds"]
+    if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
+        raise InputError(f"{NAME}: settle_rounds must be a whole number >= 0, got {rounds!r}")
     if out["solver"] not in SOLVER_ROUNDS:
         raise InputError(
             f"{NAME}: solver must be one of {', '.join(SOLVER_ROUNDS)}, got {out['solver']!r}"
@@ -269,7 +276,7 @@ class Localizer:
         self.place_sd_mm = max(0.5, self._place_floor)
         # Factor on every reported sigma, from the last batch solve (_error_bar.py).
         self._sigma_scale = 1.0
-        self._settled = False  # the last batch solve took the finger's SETTLE_ROUNDS
+        self._settled = False  # the last batch solve took the finger's settle_rounds
         self._dirty = False  # touches added since the last full polish
         self._next_full = 8  # the live view re-solves everything when the session doubles
         self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
@@ -791,8 +798,13 @@ class Localizer:
             self._solve(np.arange(n), np.zeros(n, bool))
             if self._k >= 3:
                 self._polish(SOLVER_ROUNDS[self.params["solver"]])
-                if self.params["solver"] == "alternate" and self.place_sd_mm > FINGER_LIKE_MM:
-                    self._polish(SETTLE_ROUNDS, SETTLE_RELAX)
+                settle = int(self.params["settle_rounds"])
+                if (
+                    self.params["solver"] == "alternate"
+                    and self.place_sd_mm > FINGER_LIKE_MM
+                    and settle > 0
+                ):
+                    self._polish(settle, SETTLE_RELAX)
                     self._settled = True
                 self._second_peaks()
                 self._refit_after_settling()
