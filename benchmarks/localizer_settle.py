@@ -15,27 +15,15 @@ import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loa
 
 # isort: split
 import argparse
-import time
 
 import numpy as np
 from localizer_live import seed_range
 from localizer_seeds import rms
 
-from varskin.localization import localize
+from varskin.bench import _timed  # varskin bench's own timer: median ms of repeated runs
 from varskin.patch import builtin_patch
 from varskin.planning import uniform_points
 from varskin.simulate import simulate_session
-
-
-def timed(repeats: int, fn, *args, **kwargs):
-    """The result of ``fn(*args, **kwargs)`` and its median wall time (s) over ``repeats``
-    calls."""
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn(*args, **kwargs)
-        times.append(time.perf_counter() - t0)
-    return out, float(np.median(times))
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -59,13 +47,13 @@ def main(argv: list[str] | None = None) -> None:
     for seed in args.seeds:
         s = simulate_session(patch, grid, "finger", seed)
         logs = s.point_logs()
-        _, tp = timed(args.repeats, localize, logs, method="paper", ppcm=128)
-        paper_ms.append(1e3 * tp)
+        _, tp = _timed(logs, "paper", {"ppcm": 128}, args.repeats)
+        paper_ms.append(tp)
         for r in rounds:
-            pred, t = timed(args.repeats, localize, logs, settle_rounds=r)
+            pred, t = _timed(logs, "peakfit", {"settle_rounds": r}, args.repeats)
             e = np.linalg.norm(pred.xy() - s.truth, axis=1)
             e = e[np.isfinite(e)]
-            ms[r].append(1e3 * t)
+            ms[r].append(t)
             ratio[r].append(t / tp)
             scene_rms[r].append(rms(e))
             worst[r] = max(worst[r], float(e.max()))
