@@ -27,6 +27,15 @@ from varskin.planning import uniform_points
 from varskin.simulate import simulate_session, uniform_grid
 
 
+def add_settle_rounds(ap: argparse.ArgumentParser) -> None:
+    """The ``--settle-rounds`` option the localizer benchmarks share."""
+    ap.add_argument(
+        "--settle-rounds",
+        type=int,
+        help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
+    )
+
+
 def rms(e):
     return float(np.sqrt((e**2).sum() / (len(e) - 1)))
 
@@ -46,11 +55,7 @@ def main(argv: list[str] | None = None) -> None:
         help="cells: the 20 x 5 cell centres (default); plan: varskin calibrate's grid, "
         "3 mm margin",
     )
-    ap.add_argument(
-        "--settle-rounds",
-        type=int,
-        help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
-    )
+    add_settle_rounds(ap)
     args = ap.parse_args(argv)
     solver, seeds = args.solver, args.seeds
     extra = {} if args.settle_rounds is None else {"settle_rounds": args.settle_rounds}

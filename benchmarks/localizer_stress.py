@@ -11,8 +11,9 @@ status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
 [--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]`` (31 s on
-the 2-core VM with 2 jobs). Peakfit runs with the layout prior from the patch (``patch=``), as ``varskin
-calibrate`` runs it, unless ``--prior`` says otherwise; the paper method at ppcm 16.
+the 2-core VM with 2 jobs). Peakfit runs with the layout prior from the patch
+(``patch=``), as ``varskin calibrate`` runs it, unless ``--prior`` says otherwise; the
+paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
 paper method over the sensors both located, max error, how many ``ok`` sensors are above
 2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, and the
@@ -29,6 +30,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
+from localizer_seeds import add_settle_rounds
 
 from varskin.localization import localize
 from varskin.patch import builtin_patch
@@ -145,11 +147,7 @@ def main() -> None:
         help="peakfit's layout prior: from the patch (default, as `varskin calibrate` runs "
         "it), from wires inferred without a patch (`varskin localize` without --patch), or none",
     )
-    ap.add_argument(
-        "--settle-rounds",
-        type=int,
-        help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
-    )
+    add_settle_rounds(ap)
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
     names = _variant_names(args.only) or list(VARIANTS)
