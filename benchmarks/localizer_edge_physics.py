@@ -20,8 +20,8 @@ from dataclasses import replace
 
 import numpy as np
 from localizer_live import seed_range
-from localizer_seeds import rms
 
+from varskin.evaluate import rms_n_minus_1 as rms  # the paper's sqrt(sum e^2 / (N - 1))
 from varskin.localization import localize
 from varskin.patch import builtin_patch
 from varskin.planning import uniform_points

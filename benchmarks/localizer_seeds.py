@@ -21,6 +21,7 @@ import argparse
 import numpy as np
 from localizer_live import seed_range
 
+from varskin.evaluate import rms_n_minus_1 as rms  # the paper's sqrt(sum e^2 / (N - 1))
 from varskin.localization import localize
 from varskin.patch import builtin_patch
 from varskin.planning import uniform_points
@@ -34,10 +35,6 @@ def add_settle_rounds(ap: argparse.ArgumentParser) -> None:
         type=int,
         help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
     )
-
-
-def rms(e):
-    return float(np.sqrt((e**2).sum() / (len(e) - 1)))
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -22,16 +22,13 @@ import time
 
 import numpy as np
 
+from varskin.evaluate import rms_n_minus_1 as rms  # the paper's sqrt(sum e^2 / (N - 1))
 from varskin.localization import localize, peakfit
 from varskin.patch import builtin_patch
 from varskin.predictions import OK
 from varskin.simulate import simulate_session, uniform_grid
 
 SOLVERS = ("alternate", "joint")
-
-
-def rms(e: np.ndarray) -> float:
-    return float(np.sqrt((e**2).sum() / (len(e) - 1)))
 
 
 def timed(fn, *args, **kwargs):

@@ -10,10 +10,10 @@ questions per variant: how much better than the paper's method is peakfit, and i
 status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
-[--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]`` (31 s on
-the 2-core VM with 2 jobs). Peakfit runs with the layout prior from the patch
-(``patch=``), as ``varskin calibrate`` runs it, unless ``--prior`` says otherwise; the
-paper method at ppcm 16.
+[--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]`` (94 s on
+the 2-core VM with 2 jobs since finger solves settle; docs/bench/stress.md). Peakfit runs
+with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs it,
+unless ``--prior`` says otherwise; the paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
 paper method over the sensors both located, max error, how many ``ok`` sensors are above
 2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, and the
