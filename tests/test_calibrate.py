@@ -432,9 +432,6 @@ def test_resume_refuses_a_damaged_file_before_anything_starts(
     assert started == [] and copy.read_bytes() == before
 
 
-# The global 120 s is a hang guard; this test runs a 28-touch adaptive session and then its
-# resume, each re-solving as it plans: 90-104 s on the slow 2-core VM.
-@pytest.mark.timeout(300)
 def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
     """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
     stored point logs to the localizer and must land on exactly the stored touches (else the

@@ -230,10 +230,9 @@ def _distance(a, b) -> np.ndarray:
 
 def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch):
     """A finger session: 4 alternations are far from where 40 go; the default's settling
-    rounds (before its joint rounds) and 8 joint rounds are not. A robot session does not
-    settle."""
+    rounds and 8 joint rounds are not. A robot session does not settle."""
     logs = session(patch_b, "finger", 0).point_logs()
-    settled = peakfit.solved(logs, patch=patch_b, joint_settle_rounds=0)
+    settled = peakfit.solved(logs, patch=patch_b)
     assert settled._settled
     unsettled = peakfit.solved(logs, patch=patch_b, settle_rounds=0)
     assert not unsettled._settled
@@ -252,44 +251,6 @@ def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch
         assert np.median(gap) <= 0.03 and gap.max() <= 0.1, (name, np.median(gap), gap.max())
     robot = session(patch_b, "robot", 0).point_logs()
     assert not peakfit.solved(robot, patch=patch_b)._settled
-
-
-def test_joint_rounds_after_settling_are_kept_only_while_the_offsets_fit_their_scale(patch_b):
-    """A settled finger solve's joint rounds go where more of them go, and are kept on a
-    default scene; with a wrong response model (wire coupling x3) the touches' offsets
-    outgrow the placement scale they were held to, and the solve is the alternation's."""
-    kw = {"patch": patch_b, "calibrate_sigma": False}
-    for bad in (-1, 2.5, True, "8"):
-        with pytest.raises(InputError, match="joint_settle_rounds must be a whole number >= 0"):
-            peakfit.localize(
-                session(patch_b, "robot", 0, nx=6, ny=3).point_logs(), joint_settle_rounds=bad
-            )
-    s = session(patch_b, "finger", 0)
-    logs = s.point_logs()
-    kept = peakfit.localize(logs, **kw)
-    assert kept.params["joint_settle_kept"] is True
-    assert kept.params["joint_settle_ratio"] <= peakfit.JOINT_SETTLE_GUARD
-    alternation = peakfit.localize(logs, joint_settle_rounds=0, **kw)
-    assert "joint_settle_ratio" not in alternation.params
-    moved = _distance(kept, alternation)
-    assert np.median(moved) > 0.1, np.median(moved)
-    gap = _distance(kept, peakfit.localize(logs, joint_settle_rounds=16, **kw))
-    assert np.median(gap) <= 0.03 and gap.max() <= 0.1, (np.median(gap), gap.max())
-    # On this scene they are also nearer the truth (over 200 scenes: docs/benchmarks.md).
-    rms = {
-        name: float(np.sqrt(np.nanmean(np.sum((r.xy() - s.truth) ** 2, axis=1))))
-        for name, r in (("kept", kept), ("alternation", alternation))
-    }
-    assert rms["kept"] < rms["alternation"], rms
-
-    coupled = session(patch_b, "finger", 0, wire_coupling=0.12).point_logs()
-    declined = peakfit.localize(coupled, **kw)
-    assert declined.params["joint_settle_kept"] is False
-    assert declined.params["joint_settle_ratio"] > peakfit.JOINT_SETTLE_GUARD
-    same = peakfit.localize(coupled, joint_settle_rounds=0, **kw)
-    np.testing.assert_array_equal(declined.xy(), same.xy())
-    assert [e.sigma_mm for e in declined] == [e.sigma_mm for e in same]
-    assert [e.status for e in declined] == [e.status for e in same]
 
 
 def test_settle_rounds_is_checked_and_only_settles_finger_like_alternate_solves(patch_b):
