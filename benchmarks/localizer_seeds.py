@@ -10,7 +10,8 @@ scenes, ``--patch patch_b`` one patch only (two processes can split the patches)
 calibrate`` plans (from the 3 mm margin to the far one) instead of the cell centres the
 targets were set on: its outer columns lie 0.8 mm nearer the patch's ends.
 ``--settle-rounds 40`` lets finger-like solves settle for 40 rounds instead of 12
-(``localizer_settle.py`` times that).
+(``localizer_settle.py`` times that); ``--joint-settle-rounds N`` sets the joint rounds a
+settled solve then takes (default 8 without a patch, none with it).
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
@@ -29,12 +30,29 @@ from varskin.simulate import simulate_session, uniform_grid
 
 
 def add_settle_rounds(ap: argparse.ArgumentParser) -> None:
-    """The ``--settle-rounds`` option the localizer benchmarks share."""
+    """The ``--settle-rounds`` and ``--joint-settle-rounds`` options the localizer
+    benchmarks share."""
     ap.add_argument(
         "--settle-rounds",
         type=int,
         help="peakfit's settle_rounds for finger-like solves (default the localizer's, 12)",
     )
+    ap.add_argument(
+        "--joint-settle-rounds",
+        type=int,
+        help="peakfit's joint_settle_rounds after settling (default the localizer's: 8 "
+        "without a patch's design prior, none with it)",
+    )
+
+
+def settle_params(args: argparse.Namespace) -> dict:
+    """The peakfit parameters those options set (none: the localizer's defaults)."""
+    out = {}
+    if args.settle_rounds is not None:
+        out["settle_rounds"] = args.settle_rounds
+    if args.joint_settle_rounds is not None:
+        out["joint_settle_rounds"] = args.joint_settle_rounds
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -55,7 +73,7 @@ def main(argv: list[str] | None = None) -> None:
     add_settle_rounds(ap)
     args = ap.parse_args(argv)
     solver, seeds = args.solver, args.seeds
-    extra = {} if args.settle_rounds is None else {"settle_rounds": args.settle_rounds}
+    extra = settle_params(args)
     span = f"seeds {seeds[0]}-{seeds[-1]}" + (" plan grid" if args.grid == "plan" else "")
     for pname in (args.patch,) if args.patch else ("patch_a", "patch_b"):
         p = builtin_patch(pname)
@@ -96,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
                         paper_rms.append(rms(ep))
                 r = np.array(r)
                 n = len(seeds)
-                label = solver + ("" if not extra else f" settle {args.settle_rounds}")
+                label = solver + "".join(f" {k} {v}" for k, v in extra.items())
                 line = f"{label} {pname} {probe:6s} prior={int(prior)} {span}: RMS median {np.median(r):.3f} worst {r.max():.3f} mm; seeds with RMS<=0.3: {(r <= 0.3).sum()}/{n}; seeds with a sensor >2mm: {over2}/{n}"
                 if declined:
                     line += f"; wires none on {declined}/{n}"

@@ -6,9 +6,11 @@ fixed point at Patch B's outermost wires (docs/benchmarks.md, "How far finger so
 settle"). ``localizer_seeds.py --settle-rounds N`` counts the per-scene misses over many
 seeds; this script times the batch solve (error-bar check included) at each setting on a
 few of the same scenes, with the paper method (ppcm 128) timed in the same loop for the
-ratio, and prints each setting's median time beside its errors. Run as ``python
-benchmarks/localizer_settle.py [--seeds 360-369] [--rounds 0,12,24,40] [--repeats 3]``
-(about five minutes on the 2-core VM; nothing else should run meanwhile).
+ratio, and prints each setting's median time beside its errors. A setting is
+``settle_rounds`` or ``settle_rounds:joint_settle_rounds`` (the joint rounds a settled solve
+then tries; without the colon, the localizer's default). Run as ``python
+benchmarks/localizer_settle.py [--seeds 360-369] [--rounds 0,12:0,12,40:0] [--repeats 3]``
+(about six minutes on the 2-core VM; nothing else should run meanwhile).
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
@@ -31,12 +33,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=seed_range, default=range(360, 370), help="default 360-369")
     ap.add_argument(
         "--rounds",
-        default="0,12,24,40",
-        help="comma-separated settle_rounds values (default 0,12,24,40)",
+        default="0,12:0,12,40:0",
+        help="comma-separated settle_rounds[:joint_settle_rounds] (default 0,12:0,12,40:0)",
     )
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per solve (default 3)")
     args = ap.parse_args(argv)
-    rounds = [int(r) for r in args.rounds.split(",")]
+    rounds = args.rounds.split(",")
     patch = builtin_patch("patch_b")
     grid = uniform_points(patch, 20, 5)
     ms = {r: [] for r in rounds}
@@ -50,7 +52,11 @@ def main(argv: list[str] | None = None) -> None:
         _, tp = _timed(logs, "paper", {"ppcm": 128}, args.repeats)
         paper_ms.append(tp)
         for r in rounds:
-            pred, t = _timed(logs, "peakfit", {"settle_rounds": r}, args.repeats)
+            settle, _, joint = r.partition(":")
+            params = {"settle_rounds": int(settle)}
+            if joint:
+                params["joint_settle_rounds"] = int(joint)
+            pred, t = _timed(logs, "peakfit", params, args.repeats)
             e = np.linalg.norm(pred.xy() - s.truth, axis=1)
             e = e[np.isfinite(e)]
             ms[r].append(t)
@@ -62,7 +68,9 @@ def main(argv: list[str] | None = None) -> None:
         f"{args.seeds[0]}-{args.seeds[-1]}, median of {args.repeats} runs per solve; "
         f"paper method (ppcm 128) median {np.median(paper_ms):.0f} ms"
     )
-    print("| settle_rounds | batch solve, median | x paper (median) | RMS median | max error |")
+    print(
+        "| settle_rounds[:joint_settle_rounds] | batch solve, median | x paper (median) | RMS median | max error |"
+    )
     print("|---|---|---|---|---|")
     for r in rounds:
         print(

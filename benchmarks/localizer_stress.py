@@ -10,7 +10,8 @@ questions per variant: how much better than the paper's method is peakfit, and i
 status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
-[--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]`` (94 s on
+[--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]
+[--joint-settle-rounds N]`` (94 s on
 the 2-core VM with 2 jobs since finger solves settle; docs/bench/stress.md). Peakfit runs
 with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs it,
 unless ``--prior`` says otherwise; the paper method at ppcm 16.
@@ -30,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
 import numpy as np
-from localizer_seeds import add_settle_rounds
+from localizer_seeds import add_settle_rounds, settle_params
 
 from varskin.localization import localize
 from varskin.patch import builtin_patch
@@ -102,8 +103,7 @@ def one_scene(job):
     s = simulate_session(patch, _points(patch, grid, seed), model, seed, params)
     logs = s.point_logs()
     kw = {"patch": patch} if prior == "patch" else {"infer_wires": prior == "inferred"}
-    if settle is not None:
-        kw["settle_rounds"] = settle
+    kw.update(settle)
     pf = localize(logs, solver=solver, **kw)
     pp = localize(logs, method="paper", ppcm=16)
     ef = np.linalg.norm(pf.xy() - s.truth, axis=1)
@@ -155,7 +155,7 @@ def main() -> None:
     if unknown:
         ap.error(f"--only: unknown variant(s) {unknown}; known: {', '.join(VARIANTS)}")
     jobs = [
-        (v, pn, pr, seed, args.solver, args.prior, args.settle_rounds)
+        (v, pn, pr, seed, args.solver, args.prior, settle_params(args))
         for v in names
         for pn in ("patch_a", "patch_b")
         for pr in ("robot", "finger")

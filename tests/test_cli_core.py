@@ -314,8 +314,9 @@ def test_localize_settle_rounds_reaches_the_solver_and_refuses_bad_counts(
     simulated, tmp_path, capsys
 ):
     """``--settle-rounds N`` gives ``localize(..., settle_rounds=N)``'s positions (on this
-    finger scene 0 rounds differ from the default's 12); a negative count or one the paper
-    method has no use for is a one-line error."""
+    finger scene 0 rounds differ from the default's 12), and ``--joint-settle-rounds N``
+    ``joint_settle_rounds=N``'s (with --patch the default takes none); a negative count or
+    one the paper method has no use for is a one-line error."""
     from varskin.localization import localize
     from varskin.patch import builtin_patch
     from varskin.pointlog_csv import read_point_logs
@@ -334,8 +335,18 @@ def test_localize_settle_rounds_reaches_the_solver_and_refuses_bad_counts(
         if e.x_mm is not None and d.x_mm is not None:
             moved = max(moved, abs(e.x_mm - d.x_mm), abs(e.y_mm - d.y_mm))
     assert moved > 0.01
+    assert main([*args, "--joint-settle-rounds", "8", "--json", str(path)]) == 0
+    got = {e["sensor"]: e for e in json.loads(path.read_text())["sensors"]}
+    joint = localize(read_point_logs(logs), joint_settle_rounds=8, **kw)
+    assert "joint_settle_ratio" in joint.params and "joint_settle_ratio" not in default.params
+    for e in joint:
+        assert got[e.sensor]["x_mm"] == e.x_mm and got[e.sensor]["y_mm"] == e.y_mm
     capsys.readouterr()
-    for bad in (["--settle-rounds", "-1"], ["--method", "paper", "--settle-rounds", "40"]):
+    for bad in (
+        ["--settle-rounds", "-1"],
+        ["--method", "paper", "--settle-rounds", "40"],
+        ["--joint-settle-rounds", "-1"],
+    ):
         assert main(["localize", str(logs), "-q", *bad]) == 2
         err = capsys.readouterr().err
         assert "settle_rounds" in err and "Traceback" not in err and err.count("\n") == 1, err

@@ -253,6 +253,53 @@ def test_finger_solves_settle_where_four_alternations_crawl(patch_b, monkeypatch
     assert not peakfit.solved(robot, patch=patch_b)._settled
 
 
+def test_joint_rounds_after_settling_are_kept_only_while_the_offsets_fit_their_scale(patch_b):
+    """A settled finger solve without a patch's design prior takes joint rounds that go
+    where more of them go, and keeps them on a default scene; with a wrong response model
+    (wire coupling x3) the touches' offsets outgrow the placement scale they were held to,
+    and the solve is the alternation's. With the patch's prior in use it takes none unless
+    asked."""
+    kw = {"calibrate_sigma": False}
+    for bad in (-1, 2.5, True, "8"):
+        with pytest.raises(InputError, match="joint_settle_rounds must be a whole number >= 0"):
+            peakfit.localize(
+                session(patch_b, "robot", 0, nx=6, ny=3).point_logs(), joint_settle_rounds=bad
+            )
+    s = session(patch_b, "finger", 0)
+    logs = s.point_logs()
+    kept = peakfit.localize(logs, **kw)
+    assert kept.params["joint_settle_kept"] is True
+    with_patch = peakfit.localize(logs, patch=patch_b, **kw)
+    assert "joint_settle_ratio" not in with_patch.params
+    asked = peakfit.localize(logs, patch=patch_b, joint_settle_rounds=8, **kw)
+    assert "joint_settle_ratio" in asked.params
+    assert peakfit.localize(logs, patch=patch_b, layout_prior=False, **kw).params[
+        "joint_settle_kept"
+    ]
+    assert kept.params["joint_settle_ratio"] <= peakfit.JOINT_SETTLE_GUARD
+    alternation = peakfit.localize(logs, joint_settle_rounds=0, **kw)
+    assert "joint_settle_ratio" not in alternation.params
+    moved = _distance(kept, alternation)
+    assert np.median(moved) > 0.1, np.median(moved)
+    gap = _distance(kept, peakfit.localize(logs, joint_settle_rounds=16, **kw))
+    assert np.median(gap) <= 0.03 and gap.max() <= 0.1, (np.median(gap), gap.max())
+    # On this scene they are also nearer the truth (over 200 scenes: docs/benchmarks.md).
+    rms = {
+        name: float(np.sqrt(np.nanmean(np.sum((r.xy() - s.truth) ** 2, axis=1))))
+        for name, r in (("kept", kept), ("alternation", alternation))
+    }
+    assert rms["kept"] < rms["alternation"], rms
+
+    coupled = session(patch_b, "finger", 0, wire_coupling=0.12).point_logs()
+    declined = peakfit.localize(coupled, **kw)
+    assert declined.params["joint_settle_kept"] is False
+    assert declined.params["joint_settle_ratio"] > peakfit.JOINT_SETTLE_GUARD
+    same = peakfit.localize(coupled, joint_settle_rounds=0, **kw)
+    np.testing.assert_array_equal(declined.xy(), same.xy())
+    assert [e.sigma_mm for e in declined] == [e.sigma_mm for e in same]
+    assert [e.status for e in declined] == [e.status for e in same]
+
+
 def test_settle_rounds_is_checked_and_only_settles_finger_like_alternate_solves(patch_b):
     """``settle_rounds`` takes a whole number >= 0; each value changes a finger solve and
     none changes a robot's (which does not settle) or a `joint` one's."""
@@ -346,13 +393,17 @@ def test_layout_prior_pins_edge_wires_and_weakens_when_the_patch_is_off_design(
     """Sensors beyond the last probe column are barely located by their own map; the
     layout prior (wire lines plus the design, both with scatter estimated from the data)
     pins them. Built far from its design (wires displaced by 2 mm sd instead of 0.6), the
-    prior weakens by itself: still no worse than none and still honest."""
+    prior weakens by itself: still no worse than the same solve without it, and still
+    honest. (Without the patch a finger solve takes joint rounds that the patch's prior
+    replaces; on these scenes at 2 mm off the design they do as well as the prior:
+    docs/localizer.md, Known limits.)"""
     own, pooled, edge, inside = [], [], [], []
     for probe in ("robot", "finger"):
         for seed in (5, 6):
             s = session(patch_b, probe, seed, wire_offset_sd_mm=wire_offset_sd_mm)
             logs = s.point_logs()
-            e0 = errors(localize(logs, infer_wires=False), s.truth)
+            same_solve = {"layout_prior": False, "joint_settle_rounds": 0}
+            e0 = errors(localize(logs, patch=patch_b, **same_solve), s.truth)
             pred = localize(logs, patch=patch_b)
             e1 = errors(pred, s.truth)
             own.append(e0)

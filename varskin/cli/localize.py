@@ -76,6 +76,16 @@ def register(subparsers) -> None:
         "the time of the default (docs/benchmarks.md); default 12",
     )
     p.add_argument(
+        "--joint-settle-rounds",
+        dest="joint_settle_rounds",
+        type=int,
+        metavar="N",
+        help="peakfit: joint rounds a settled solve then takes, kept only while the touches' "
+        "offsets fit their placement scatter (0: none); default 8 without --patch, none "
+        "with it, where the design prior pins the edge sensors they are for "
+        "(docs/localizer.md)",
+    )
+    p.add_argument(
         "--first-order-sigma",
         dest="calibrate_sigma",
         action="store_const",
@@ -142,6 +152,7 @@ def method_params(args) -> dict:
             "area",
             "solver",
             "settle_rounds",
+            "joint_settle_rounds",
             "placement_sd_mm",
             "calibrate_sigma",
         )

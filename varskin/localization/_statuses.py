@@ -60,6 +60,11 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     params["touch_gain_sd"] = float(loc.gain_sd)
     # The error-bar check's factor on every sigma (1: not run, or nothing to change).
     params["sigma_scale"] = float(loc._sigma_scale)
+    # A settled solve's joint rounds: the placement scatter they implied over the one they
+    # were held to, and whether they were kept (peakfit.JOINT_SETTLE_GUARD).
+    if loc._joint_ratio is not None:
+        params["joint_settle_ratio"] = loc._joint_ratio
+        params["joint_settle_kept"] = loc._joint_kept
     status = np.array([OK] * n, dtype=object)
     snr = _snr(loc)
     if K < 3 or loc._n_distinct < 3:
