@@ -394,9 +394,9 @@ def test_layout_prior_pins_edge_wires_and_weakens_when_the_patch_is_off_design(
     layout prior (wire lines plus the design, both with scatter estimated from the data)
     pins them. Built far from its design (wires displaced by 2 mm sd instead of 0.6), the
     prior weakens by itself: still no worse than the same solve without it, and still
-    honest. (Without the patch a finger solve takes joint rounds that the patch's prior
-    replaces; on these scenes at 2 mm off the design they do as well as the prior:
-    docs/localizer.md, Known limits.)"""
+    honest. (Without the patch a finger solve takes joint rounds instead, and on these
+    scenes at 2 mm off the design it does better than the prior: docs/localizer.md, Known
+    limits.)"""
     own, pooled, edge, inside = [], [], [], []
     for probe in ("robot", "finger"):
         for seed in (5, 6):
