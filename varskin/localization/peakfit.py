@@ -248,6 +248,15 @@ class _SensorFit:
     n_clipped: np.ndarray  # (N,) touches excluded as clipped
     tc: np.ndarray  # (N,) session time (min) of the sensor's largest reading: drift origin
 
+    def copy_of(self, cols=slice(None)) -> dict:
+        """Every field's values for the sensors ``cols`` (default all), for ``put``."""
+        return {name: getattr(self, name)[cols].copy() for name in self.__dataclass_fields__}
+
+    def put(self, kept: dict, cols=slice(None)) -> None:
+        """Write back what ``copy_of`` took, for the sensors ``cols``."""
+        for name, v in kept.items():
+            getattr(self, name)[cols] = v
+
 
 class Localizer:
     """Incremental localizer: ``update(point_log)`` after each touch, ``result()`` any time.
@@ -886,22 +895,21 @@ class Localizer:
         K = self._k
         lw = None if self.shared_lw is None else self.shared_lw.copy()
         return {
-            "fit": {n: getattr(self.fit, n).copy() for n in _SensorFit.__dataclass_fields__},
-            "touch": [
-                a[:K].copy() for a in (self._lg, self._dxy, self._missed, self._v_lg, self._v_d)
-            ],
+            "fit": self.fit.copy_of(),
+            "touch": [a[:K].copy() for a in self._touch_arrays()],
             "scales": (self.gain_sd, self.place_sd_mm, lw),
         }
 
     def _set_touch_and_fit_state(self, state: dict) -> None:
         K = self._k
-        for name, v in state["fit"].items():
-            setattr(self.fit, name, v)
-        for a, v in zip(
-            (self._lg, self._dxy, self._missed, self._v_lg, self._v_d), state["touch"], strict=True
-        ):
+        self.fit.put(state["fit"])
+        for a, v in zip(self._touch_arrays(), state["touch"], strict=True):
             a[:K] = v
         self.gain_sd, self.place_sd_mm, self.shared_lw = state["scales"]
+
+    def _touch_arrays(self) -> tuple[np.ndarray, ...]:
+        """The per-touch nuisance arrays a polish writes (rows 0..K-1)."""
+        return (self._lg, self._dxy, self._missed, self._v_lg, self._v_d)
 
     def _statuses(self) -> np.ndarray:
         """(N,) every sensor's status as the current fits give it."""
@@ -909,16 +917,14 @@ class Localizer:
 
     def _refit(self, cols: np.ndarray, cold_iter: int | None = None) -> dict:
         """Fit sensors ``cols`` afresh, then polish; return the fits they had, for _restore."""
-        f = self.fit
-        kept = {name: getattr(f, name)[cols].copy() for name in _SensorFit.__dataclass_fields__}
+        kept = self.fit.copy_of(cols)
         self._solve(cols, np.zeros(cols.size, bool), max_iter=cold_iter)
         self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
         return kept
 
     def _restore(self, cols: np.ndarray, kept: dict, mask: np.ndarray) -> None:
         """Put back the fits _refit replaced, for the sensors ``cols[mask]``."""
-        for name, v in kept.items():
-            getattr(self.fit, name)[cols[mask]] = v[mask]
+        self.fit.put({name: v[mask] for name, v in kept.items()}, cols[mask])
 
     def _refit_after_settling(self) -> None:
         """Re-fit each `drifting` sensor from the touches since the probe came back to it.
