@@ -6,9 +6,10 @@ reference runs at ppcm 16, within 0.02 mm of ppcm 128 on these scenes (docs/benc
 and 34x faster. Run as ``python benchmarks/localizer_seeds.py`` (about three minutes);
 ``--solver joint`` checks the other batch solver the same way, ``--seeds 360-559`` other
 scenes, ``--patch patch_b`` one patch only (two processes can split the patches),
-``--probe robot`` one probe only. ``--grid plan`` probes the 20 x 5 grid ``varskin
-calibrate`` plans (from the 3 mm margin to the far one) instead of the cell centres the
-targets were set on: its outer columns lie 0.8 mm nearer the patch's ends.
+``--probe robot`` one probe only, ``--patch-given no`` the solves without the patch only.
+``--grid plan`` probes the 20 x 5 grid ``varskin calibrate`` plans (from the 3 mm margin
+to the far one) instead of the cell centres the targets were set on: its outer columns lie
+0.8 mm nearer the patch's ends.
 ``--settle-rounds 40`` lets finger-like solves settle for 40 rounds instead of 12
 (``localizer_settle.py`` times that); ``--joint-settle-rounds N`` sets the joint rounds a
 settled solve then takes (default 8 without a patch, none with it).
@@ -64,6 +65,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--patch", choices=("patch_a", "patch_b"), help="one patch (default both)")
     ap.add_argument("--probe", choices=("robot", "finger"), help="one probe (default both)")
     ap.add_argument(
+        "--patch-given",
+        choices=("no", "yes"),
+        help="solve only without the patch (no) or only with it (yes); default both",
+    )
+    ap.add_argument(
         "--grid",
         choices=("cells", "plan"),
         default="cells",
@@ -82,7 +88,8 @@ def main(argv: list[str] | None = None) -> None:
         inner = (tx > 0) & (tx < len(p.tx_x_mm) - 1)
         grid = uniform_points(p, 20, 5) if args.grid == "plan" else uniform_grid(p, 20, 5)
         for probe in (args.probe,) if args.probe else ("robot", "finger"):
-            for prior in (False, True):
+            priors = {None: (False, True), "no": (False,), "yes": (True,)}[args.patch_given]
+            for prior in priors:
                 r = []
                 ratio = []
                 over2 = 0

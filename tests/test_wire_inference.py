@@ -84,18 +84,26 @@ def test_a_loose_sensor_far_off_gets_no_wire(patch_b):
 
 
 @pytest.mark.parametrize(
-    ("beyond_mm", "sd_mm", "joins"),
+    ("beyond_mm", "sd_mm", "sd_x_mm", "joins"),  # joins: (its row, its column)
     [
         # Patch B finger, seed 338: S1 fitted 5 mm beyond the last row with a 3.1 mm sd
         # (over half the ~6 mm gap between rows), 3.97 mm off when it kept no wire.
-        (6.0, 3.3, True),
-        # A fit flung far out: 22 mm beyond with a 9 mm sd is within reach of that row only,
-        # but at 2.4 sd from it against 3.1 from the next: far from 100 to 1.
-        (21.6, 9.0, False),
+        (6.0, 3.3, 0.2, (True, True)),
+        # Patch B finger, plan grid, seed 469: 3.6 mm beyond with a 9.5 mm sd along y, so
+        # within reach of two rows and joining neither; its column is sure, and that
+        # column's other two crossings are held: it is placed on the free one.
+        (3.6, 9.5, 0.2, (True, True)),
+        # The same at 2.4 sd from the free row: that column has no other to offer.
+        (21.6, 9.0, 0.2, (True, True)),
+        # A fit flung far out in x as well: no sure column, and 2.4 sd from its row against
+        # 3.1 from the next is far from 100 to 1.
+        (21.6, 9.0, 20.0, (False, False)),
+        # Beyond JOIN_SDS of the free row: it keeps its sure column, and no row.
+        (30.0, 9.0, 0.2, (False, True)),
     ],
 )
 def test_a_loose_sensor_beyond_the_last_row_joins_it_only_at_clear_odds(
-    patch_b, beyond_mm, sd_mm, joins
+    patch_b, beyond_mm, sd_mm, sd_x_mm, joins
 ):
     tx, rx = wires_of(patch_b)
     rng = np.random.default_rng(7)
@@ -104,24 +112,54 @@ def test_a_loose_sensor_beyond_the_last_row_joins_it_only_at_clear_odds(
     corner = 0  # S1: first TX wire, the RX wire of the largest y
     assert rx[corner] == 0 and xy[rx == 0, 1].mean() > xy[rx == 1, 1].mean()
     xy[corner, 1] = patch_b.design_xy[corner, 1] + beyond_mm
-    sd[corner, 1] = sd_mm
+    sd[corner] = (sd_x_mm, sd_mm)
     located = np.ones(len(tx), bool)
     located[corner] = False
-    gx, gy = infer_wires(xy, sd, located, ~located, 0.25)
+    variants = [~located, np.zeros(len(tx), bool)]  # too loose to locate, or located
+    if beyond_mm > 3.0 * sd_mm:
+        # Located, yet beyond every row's reach: it refutes the rows (one may be missing).
+        assert infer_wires(xy, sd, np.ones(len(tx), bool), variants.pop(), 0.25) is None
+    for loose in variants:
+        gx, gy = infer_wires(xy, sd, located | ~loose, loose, 0.25)
+        assert same_partition(gx, tx) and same_partition(gy, rx)
+        row, column = joins
+        assert gy[corner] == (gy[3] if row else -1)  # S4 is on the same RX wire
+        assert gx[corner] == (gx[1] if column else -1)  # and S2 on the same TX wire
+
+
+def test_rows_that_slant_apart_are_cut_as_lines(patch_b):
+    """Patch B finger, plan grid, seed 403: its middle RX wire displaced 2 mm towards the
+    next at one end and bent, so the two are 3.3 mm apart at x = 6 and 4.4 mm at x = 148.
+    Sorted by y, the rows' ends interleave with the gap between them: no cut is clear, and
+    level rows gave no wires. As lines each row is clear, and the grid is the simulator's;
+    the corner's loose S1 then joins its row. Rows that cross are still refused."""
+    tx, rx = wires_of(patch_b)
+    x = patch_b.design_xy[:, 0]
+    rng = np.random.default_rng(8)
+    lines = {0: (21.0, 0.0), 1: (11.1, 0.015), 2: (8.0, 0.006)}  # y at x = 4, slope
+    y = np.array([lines[r][0] + lines[r][1] * (xi - 4.0) for r, xi in zip(rx, x, strict=True)])
+    xy = np.column_stack([x, y]) + rng.normal(0, [0.5, 0.3], (len(tx), 2))
+    sd = np.tile([0.55, 0.6], (len(tx), 1))
+    xy[0, 1], sd[0, 1] = 23.25, 2.9  # S1, fitted beyond the top row, loose in y
+    ys = np.sort(xy[:, 1])
+    gaps = np.diff(ys) / np.hypot(0.6, 0.6)
+    assert np.sort(gaps)[-2] < 4.0  # the second-widest gap is no clear cut (CUT_SDS)
+    ok = np.ones(len(tx), bool)
+    gx, gy = infer_wires(xy, sd, ok, ~ok, 0.25)
     assert same_partition(gx, tx) and same_partition(gy, rx)
-    if joins:
-        assert gy[corner] == gy[3]  # S4, on the same RX wire
-        assert gx[corner] == gx[1]  # and its column, S2's
-    else:
-        assert gy[corner] == -1 and gx[corner] == -1
+    assert (gy >= 0).all() and gy[0] == gy[3]
+    crossing = xy.copy()
+    crossing[rx == 2, 1] = 17.5 - 0.06 * x[rx == 2]  # from above row 1 to below it
+    assert infer_wires(crossing, sd, ok, ~ok, 0.25) is None
 
 
 def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, monkeypatch):
     """A settled finger solve's first-order sds are wider than its errors by the error-bar
-    check's factor (0.6 here); at them this scene's rows blur and no grid is clear. At the
-    checked sds the grid is, and it is the simulator's. (The alternation's solve, as where
-    its joint rounds are declined: kept, they sharpen this scene's rows enough for the
-    first-order sds too.)"""
+    check's factor (0.6 here); at them this scene's rows blurred as level rows and no grid
+    was clear. At the checked sds the grid is, at the first try, and it is the simulator's.
+    Since rows may be cut as slanted lines, the first-order sds find the same grid too.
+    (The alternation's solve, as where its joint rounds are declined: kept, they sharpen
+    this scene's rows enough for the first-order sds as well.)"""
     from varskin.localization import _statuses
     from varskin.localization.peakfit import solved
 
@@ -137,11 +175,15 @@ def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, mon
 
     monkeypatch.setattr(_statuses, "infer_wires", spy)
     assert _statuses.judge(loc)[4]["wires"] == "inferred"
+    assert len(seen) == 1  # answered at the checked sds: no fallback to the first-order ones
     gx, gy = seen[-1]
     assert same_partition(gx, tx) and same_partition(gy, rx)
     assert (gx >= 0).mean() >= 0.9 and (gy >= 0).all()
     loc._sigma_scale = 1.0  # the first-order sds alone
-    assert _statuses.judge(loc)[4]["wires"] == "none"
+    seen.clear()
+    assert _statuses.judge(loc)[4]["wires"] == "inferred"
+    gx1, gy1 = seen[-1]
+    assert same_partition(gx1, tx) and same_partition(gy1, rx)
 
 
 def test_no_grid_means_no_wires():
@@ -201,3 +243,35 @@ def test_localize_without_a_patch_infers_the_wires_of_a_finger_session(patch_b):
     rms = {k: float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for k, v in err.items()}
     assert rms["inferred"] <= 1.05 * rms["given"], rms
     assert rms["inferred"] <= 0.95 * rms["off"], rms
+
+
+@pytest.mark.parametrize(("seed", "within_mm"), [(403, 2.0), (469, 1.0)])
+def test_the_corner_sensor_of_a_slanted_or_loose_row_keeps_its_wires(
+    patch_b, monkeypatch, seed, within_mm
+):
+    """The two Patch B finger scenes on ``varskin calibrate``'s plan grid (seeds 360-559)
+    that, without a patch, kept a sensor above 2 mm: S1 at the corner, 2.38 mm off with
+    its rows slanting apart (403: no wires were inferred) and 3.65 mm off loose in y
+    across two rows (469: no wire for S1). Now both its wires are inferred: 1.91 and
+    0.48 mm. (403 keeps a ~1.8 mm shift of its whole first TX wire in x, with the patch
+    given too: 1.63 mm.)"""
+    from varskin.localization import _statuses
+    from varskin.planning import uniform_points
+
+    tx, rx = wires_of(patch_b)
+    s = simulate_session(patch_b, uniform_points(patch_b, 20, 5), "finger", seed)
+    seen = []
+
+    def spy(*args):
+        seen.append(infer_wires(*args))
+        return seen[-1]
+
+    monkeypatch.setattr(_statuses, "infer_wires", spy)
+    pred = localize(s.point_logs())
+    assert pred.params["wires"] == "inferred"
+    gx, gy = seen[-1]
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert gx[0] >= 0 and gy[0] >= 0
+    e = np.hypot(*(pred.xy() - s.truth).T)
+    assert np.isfinite(e[0]) and e[0] < within_mm, e[0]
+    assert np.nanmax(e) < 2.0

@@ -14,14 +14,16 @@ wire, where no answer leaves them as they were.
   exactly one must pass.
 * Rows: the located sensors sorted by y are cut at the widest gaps, measured in the two
   neighbours' sds; every cut at least CUT_SDS, every other gap under JOIN_SDS, every sensor
-  within REACH_SDS of its row's centre. A sensor loose in y can bridge two rows, so the
-  loosest are set aside until the rows are clear (none loose left: no grid).
+  within REACH_SDS of its row's centre. Failing the gaps, rows that slant apart may still
+  be clear as straight lines. A sensor loose in y can bridge two rows, so the loosest are
+  set aside until the rows are clear (none loose left: no grid).
 * Columns: within each complete row the sensors are ranked along x. A column is clear if
   its centre is CUT_SDS typical sds from its neighbours' and its sensors are within
   REACH_SDS of it; an unclear column's sensors keep only their row.
 * Loose sensors (set aside, on an incomplete row, or too loose to be located) join the
   one row or column within JOIN_SDS of them, if every other is beyond REACH_SDS and the
-  odds for it against the next nearest are at least JOIN_ODDS to 1.
+  odds for it against the next nearest are at least JOIN_ODDS to 1. One still without a
+  row may join a column on x alone, then the one row free in that column.
 * Refused: a located sensor out of reach of every row (a row was missed), a row with more
   sensors than columns, or complete rows that leave most sensors in unclear columns (rows
   that merge two wires rank the sensors of one column apart).
@@ -56,24 +58,37 @@ JOIN_ODDS = 100.0
 
 class _Family(NamedTuple):
     """One family of wires, the rows or the columns: where each lies, how surely, and which
-    may take a sensor that joins by reach (an unclear one is a candidate, never the answer)."""
+    may take a sensor that joins by reach (an unclear one is a candidate, never the answer).
+    Rows may slant: each lies at ``centre + slope * (u - at)``, ``u`` the sensor's x."""
 
     centre: np.ndarray  # (k,) mm
     sd: np.ndarray  # (k,) sd of each centre
     clear: np.ndarray  # (k,) bool
+    slope: np.ndarray | None = None  # (k,) mm per mm along the other axis; None: level
+    at: float = 0.0  # where along the other axis ``centre`` lies
 
-    def reaches(self, v: float, sd_v: float) -> np.ndarray:
+    def line(self, u) -> np.ndarray:
+        """Each wire's coordinate at ``u`` along the other axis: (k,), or (k, n) for n."""
+        u = np.asarray(u, float)
+        shape = (-1,) + (1,) * u.ndim
+        slope = np.zeros_like(self.centre) if self.slope is None else self.slope
+        return self.centre.reshape(shape) + slope.reshape(shape) * (u - self.at)
+
+    def reaches(self, v: float, sd_v: float, u: float = 0.0) -> np.ndarray:
         """(k,) is each wire within REACH_SDS of a sensor at ``v`` with sd ``sd_v``?"""
-        return np.abs(self.centre - v) <= REACH_SDS * np.hypot(sd_v, self.sd)
+        return np.abs(self.line(u) - v) <= REACH_SDS * np.hypot(sd_v, self.sd)
 
-    def holds(self, v: np.ndarray, sd_v: np.ndarray, j: np.ndarray) -> np.ndarray:
+    def holds(
+        self, v: np.ndarray, sd_v: np.ndarray, j: np.ndarray, u: np.ndarray | None = None
+    ) -> np.ndarray:
         """Is each sensor (at ``v``, sd ``sd_v``) within REACH_SDS of its own wire ``j``?"""
-        return np.abs(v - self.centre[j]) <= REACH_SDS * np.hypot(sd_v, self.sd[j])
+        at = self.centre[j] if u is None else self.line(u)[j, np.arange(len(j))]
+        return np.abs(v - at) <= REACH_SDS * np.hypot(sd_v, self.sd[j])
 
-    def join(self, v: float, sd_v: float, taken: np.ndarray | None = None) -> int:
+    def join(self, v: float, sd_v: float, taken: np.ndarray | None = None, u: float = 0.0) -> int:
         """The wire a sensor at ``v`` joins, or -1: the one within JOIN_SDS while every other
         (but the ``taken``) is beyond REACH_SDS, at JOIN_ODDS against the next nearest."""
-        z = np.abs(self.centre - v) / np.hypot(sd_v, self.sd)
+        z = np.abs(self.line(u) - v) / np.hypot(sd_v, self.sd)
         if taken is not None:
             z[taken] = np.inf
         near = np.flatnonzero(z <= REACH_SDS)
@@ -113,7 +128,7 @@ def infer_wires(
     for rows in range(2, n // 2 + 1):
         if n % rows:
             continue
-        r = _rows(xy[:, 1], sd[:, 1], idx, rows, float(ref[1]))
+        r = _rows(xy[:, 1], sd[:, 1], idx, rows, float(ref[1]), xy[:, 0])
         # No row may hold more sensors than there are columns.
         if r is None or np.bincount(r[0][r[0] >= 0], minlength=rows).max() > n // rows:
             continue
@@ -128,29 +143,69 @@ def infer_wires(
         return None
     gx, gy, row_family, col_family = found[0]
     for i in np.flatnonzero(loose & finite & ~located):
-        gy[i] = row_family.join(xy[i, 1], sd[i, 1])
+        gy[i] = row_family.join(xy[i, 1], sd[i, 1], u=xy[i, 0])
         if gy[i] >= 0 and col_family is not None:
             held = gx[(gy == gy[i]) & (gx >= 0)]  # one sensor per crossing
             gx[i] = col_family.join(xy[i, 0], sd[i, 0], held)
+    if col_family is not None:
+        _row_from_column(xy, sd, finite, gx, gy, row_family, col_family)
     return gx, gy
 
 
-def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float):
+def _row_from_column(
+    xy: np.ndarray,
+    sd: np.ndarray,
+    finite: np.ndarray,
+    gx: np.ndarray,
+    gy: np.ndarray,
+    row_family: _Family,
+    col_family: _Family,
+) -> None:
+    """Place a sensor no row takes by reach through its column, in place.
+
+    A sensor loose along y reaches two rows, so it joins none, and a sensor without a row
+    gets no column either: both its wires are lost, though its x is sharp. It joins a
+    column on x alone, at the usual odds (not by elimination: a fit flung far off in x is
+    no evidence of where it belongs); then, one sensor per crossing, the rows its
+    column-mates hold are taken, and it joins the free row within its reach. Patch B
+    finger, plan grid, seed 469: S1 fitted 3.6 mm beyond its row with a 9.5 mm sd along y
+    reached two rows and kept no wire, 3.65 mm off; its column's other two rows were held.
+    """
+    rows = row_family.centre.size
+    for i in np.flatnonzero(finite & (gy < 0) & (gx < 0)):
+        c = col_family.join(xy[i, 0], sd[i, 0])
+        held = gy[(gx == c) & (gy >= 0)]
+        if c < 0 or held.size >= rows:
+            continue
+        gx[i] = c
+        gy[i] = row_family.join(xy[i, 1], sd[i, 1], held, xy[i, 0])
+
+
+def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float, x: np.ndarray):
     """Rows 0..k-1 along y (labels, -1: none) and the rows as a family, or None if the
     rows are not clear.
 
     Gaps between neighbours in y are measured in their sds. The k-1 widest are the cuts;
-    the rows are clear if every cut is at least CUT_SDS and every other gap under JOIN_SDS.
-    A sensor whose fit is loose in y can bridge two rows, so while the rows are not clear the
+    the rows are clear if every cut is at least CUT_SDS and every other gap under JOIN_SDS,
+    or, failing that, if the rows are clear as slanted lines (_slanted_rows). A sensor
+    whose fit is loose in y can bridge two rows, so while the rows are not clear the
     loosest sensor (sd above PRECISE_FACTOR x ``ref``) is set aside; those join the one row
-    within their reach afterwards, if only one is (else -1)."""
+    within their reach afterwards, if only one is (else -1). ``x`` (N,): where each sensor
+    lies along the rows."""
     keep = idx[np.argsort(y[idx], kind="stable")]
     while keep.size >= k:
         ys, ss = y[keep], sd[keep]
         z = np.diff(ys) / np.hypot(ss[:-1], ss[1:])
         cuts = np.sort(np.argsort(z)[::-1][: k - 1])
         inner = np.delete(z, cuts)
+        step = np.zeros(keep.size, int)
+        step[cuts + 1] = 1
+        lab = np.cumsum(step)
         if z[cuts].min() >= CUT_SDS and (inner.size == 0 or inner.max() < JOIN_SDS):
+            family = _level_rows(ys, ss, lab, k)
+            break
+        family = _slanted_rows(x[keep], ys, ss, lab, k)
+        if family is not None:
             break
         loosest = int(np.argmax(ss))
         if ss[loosest] <= PRECISE_FACTOR * ref:
@@ -158,29 +213,66 @@ def _rows(y: np.ndarray, sd: np.ndarray, idx: np.ndarray, k: int, ref: float):
         keep = np.delete(keep, loosest)
     else:
         return None
-    step = np.zeros(keep.size, int)
-    step[cuts + 1] = 1
-    lab = np.cumsum(step)
     labels = np.full(y.size, -1)
     labels[keep] = lab
-    w = 1.0 / sd[keep] ** 2
-    wsum = np.bincount(lab, weights=w, minlength=k)
-    centre = np.bincount(lab, weights=w * y[keep], minlength=k) / wsum
-    family = _Family(centre, 1.0 / np.sqrt(wsum), np.ones(k, bool))
     # A row is one wire: each of its sensors within reach of its centre. A chain of
     # sensors each close to the next can span two wires (Patch B 12 x 3 finger, seed 354:
     # 9 mm), which the gaps alone do not see.
-    if not family.holds(y[keep], sd[keep], lab).all():
+    if not family.holds(y[keep], sd[keep], lab, x[keep]).all():
         return None
     # Every loose sensor, kept or set aside, by reach alone: where it fell in the sorted
     # order is no evidence (Patch B 12 x 3 robot, seed 317: one 11 mm sd in y, 20 mm off).
     # A sensor no row reaches refutes this many rows (a row of loose sensors was left
     # out, and its sensors would be pulled to a neighbour: Patch B 12 x 3 robot, seed 323).
     for i in idx[sd[idx] > PRECISE_FACTOR * ref]:
-        if not family.reaches(y[i], sd[i]).any():
+        if not family.reaches(y[i], sd[i], x[i]).any():
             return None
-        labels[i] = family.join(y[i], sd[i])
+        labels[i] = family.join(y[i], sd[i], u=x[i])
     return labels, family
+
+
+def _level_rows(y: np.ndarray, sd: np.ndarray, lab: np.ndarray, k: int) -> _Family:
+    """Rows ``lab`` (0..k-1) of the sensors at ``y`` as level lines: weighted means."""
+    w = 1.0 / sd**2
+    wsum = np.bincount(lab, weights=w, minlength=k)
+    centre = np.bincount(lab, weights=w * y, minlength=k) / wsum
+    return _Family(centre, 1.0 / np.sqrt(wsum), np.ones(k, bool))
+
+
+def _slanted_rows(
+    x: np.ndarray, y: np.ndarray, sd: np.ndarray, lab: np.ndarray, k: int
+) -> _Family | None:
+    """Rows ``lab`` as slanted lines, if that makes them clear; else None.
+
+    A wire that is displaced at one end and bent can come within 3 mm of its neighbour
+    there, while sorted by y alone its crossings at the far end interleave with the
+    neighbour's gap: Patch B finger, plan grid, seed 403, rows 3.3 mm apart at x = 6 and
+    4.4 mm at x = 148 gave no clear cut, so no wires, and S1 at the corner stayed 2.4 mm
+    off. Each row of three or more sensors gets a weighted straight line (the layout
+    prior's own model of a wire); the rows are clear if every sensor lies within JOIN_SDS
+    of its own row's line and at least CUT_SDS from every other row's, at its x.
+    """
+    w = 1.0 / sd**2
+    at = float(np.average(x, weights=w))
+    centre = np.empty(k)
+    slope = np.zeros(k)
+    csd = np.empty(k)
+    for r in range(k):
+        m = lab == r
+        wm, xm, ym = w[m], x[m], y[m]
+        x0 = float(np.average(xm, weights=wm))
+        sxx = float((wm * (xm - x0) ** 2).sum())
+        if m.sum() >= 3 and sxx > 0:
+            slope[r] = float((wm * (xm - x0) * (ym - np.average(ym, weights=wm))).sum()) / sxx
+        centre[r] = float(np.average(ym - slope[r] * (xm - x0), weights=wm)) + slope[r] * (at - x0)
+        csd[r] = 1.0 / np.sqrt(wm.sum())
+    family = _Family(centre, csd, np.ones(k, bool), slope, at)
+    z = np.abs(family.line(x) - y[None, :]) / sd[None, :]  # (k, n)
+    own = z[lab, np.arange(lab.size)]
+    z[lab, np.arange(lab.size)] = np.inf
+    if own.max() < JOIN_SDS and z.min() >= CUT_SDS:
+        return family
+    return None
 
 
 def _columns(x, sd, idx, gy, cols: int, rows: int, ref: float):
