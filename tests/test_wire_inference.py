@@ -22,6 +22,21 @@ def wires_of(patch) -> tuple[np.ndarray, np.ndarray]:
     return np.array([s.tx for s in patch.sensors]), np.array([s.rx for s in patch.sensors])
 
 
+@pytest.fixture
+def seen(monkeypatch) -> list:
+    """Every answer of ``infer_wires`` as the localizer calls it, in order."""
+    from varskin.localization import _statuses
+
+    answers = []
+
+    def spy(*args):
+        answers.append(infer_wires(*args))
+        return answers[-1]
+
+    monkeypatch.setattr(_statuses, "infer_wires", spy)
+    return answers
+
+
 @pytest.mark.parametrize("name", ["patch_a", "patch_b"])
 def test_a_clear_grid_gives_every_sensor_its_wires(name, request):
     patch = request.getfixturevalue(name)
@@ -153,7 +168,7 @@ def test_rows_that_slant_apart_are_cut_as_lines(patch_b):
     assert infer_wires(crossing, sd, ok, ~ok, 0.25) is None
 
 
-def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, monkeypatch):
+def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, seen):
     """A settled finger solve's first-order sds are wider than its errors by the error-bar
     check's factor (0.6 here); at them this scene's rows blurred as level rows and no grid
     was clear. At the checked sds the grid is, at the first try, and it is the simulator's.
@@ -167,13 +182,7 @@ def test_a_settled_finger_solve_infers_its_wires_at_the_checked_sds(patch_b, mon
     s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "finger", 1)
     loc = solved(s.point_logs(), joint_settle_rounds=0)
     assert loc._settled and loc._sigma_scale < 0.7
-    seen = []
-
-    def spy(*args):
-        seen.append(infer_wires(*args))
-        return seen[-1]
-
-    monkeypatch.setattr(_statuses, "infer_wires", spy)
+    seen.clear()  # the solve's own calls
     assert _statuses.judge(loc)[4]["wires"] == "inferred"
     assert len(seen) == 1  # answered at the checked sds: no fallback to the first-order ones
     gx, gy = seen[-1]
@@ -247,7 +256,7 @@ def test_localize_without_a_patch_infers_the_wires_of_a_finger_session(patch_b):
 
 @pytest.mark.parametrize(("seed", "within_mm"), [(403, 2.0), (469, 1.0)])
 def test_the_corner_sensor_of_a_slanted_or_loose_row_keeps_its_wires(
-    patch_b, monkeypatch, seed, within_mm
+    patch_b, seen, seed, within_mm
 ):
     """The two Patch B finger scenes on ``varskin calibrate``'s plan grid (seeds 360-559)
     that, without a patch, kept a sensor above 2 mm: S1 at the corner, 2.38 mm off with
@@ -255,18 +264,10 @@ def test_the_corner_sensor_of_a_slanted_or_loose_row_keeps_its_wires(
     across two rows (469: no wire for S1). Now both its wires are inferred: 1.91 and
     0.48 mm. (403 keeps a ~1.8 mm shift of its whole first TX wire in x, with the patch
     given too: 1.63 mm.)"""
-    from varskin.localization import _statuses
     from varskin.planning import uniform_points
 
     tx, rx = wires_of(patch_b)
     s = simulate_session(patch_b, uniform_points(patch_b, 20, 5), "finger", seed)
-    seen = []
-
-    def spy(*args):
-        seen.append(infer_wires(*args))
-        return seen[-1]
-
-    monkeypatch.setattr(_statuses, "infer_wires", spy)
     pred = localize(s.point_logs())
     assert pred.params["wires"] == "inferred"
     gx, gy = seen[-1]
