@@ -119,15 +119,22 @@ def test_unplug_reconnects_records_the_gap_and_keeps_recording(sim):
         assert wait_until(lambda: not rec.connected, 3.0)
         time.sleep(0.3)  # the board stays away a while
         sim.replug()
-        assert wait_until(lambda: len(got.frames) >= before + 20, 5.0)
+        # Counted from the gap, not from `before`: a frame may still land between that count
+        # and the unplug, and it belongs before the gap.
+        assert wait_until(
+            lambda: bool(got.gaps) and sum(f.t > got.gaps[0].end for f in got.frames) >= 20, 5.0
+        )
         stats = rec.stats()
     assert stats.reconnects == 1 and len(stats.gaps) == 1
     (gap,) = got.gaps
     assert gap == stats.gaps[0]
     assert gap.duration_s >= 0.25
     assert gap.last_frame_t <= gap.start < gap.end
+    pre = [f for f in got.frames if f.t <= gap.last_frame_t]
     after = [f for f in got.frames if f.t > gap.end]
-    assert after and all(f.t > gap.end for f in got.frames[before:])
+    assert len(pre) >= before and len(after) >= 20
+    assert len(pre) + len(after) == len(got.frames)  # none inside the gap
+    assert pre[-1].t == gap.last_frame_t
     # The gap event is delivered in order: after the last frame before it, before the rest.
     i = got.events.index(gap)
     assert all(isinstance(e, Frame) and e.t <= gap.start for e in got.events[:i])
