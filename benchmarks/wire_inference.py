@@ -14,6 +14,9 @@ Run as ``python benchmarks/wire_inference.py [--seeds 300:360] [--grids 20x5,12x
 
 from __future__ import annotations
 
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
+
+# isort: split
 import argparse
 import sys
 from pathlib import Path
