@@ -18,6 +18,7 @@ import numpy as np
 from varskin.localization import _peak_model as pm
 from varskin.localization._hull import HULL_PRIOR, hull_distance, pull_into_hull
 from varskin.localization._layout_prior import both_axes, shrink_to_layout
+from varskin.localization._settling import unfollowed
 from varskin.localization._wire_inference import infer_wires
 from varskin.predictions import OK, R95_PER_AXIS_SD
 from varskin.scene import ADC_MAX
@@ -43,6 +44,13 @@ WEAK = "weak"  # peak far below the other sensors': not probed near it, or damag
 # first while the board settles). Re-probe near it once the offsets are steady.
 DRIFTING = "drifting"
 DRIFT_FRACTION = 0.5
+# ... or the board's settling, as the sensors far from its touches saw it, moved its floor
+# during its own touches by more than this fraction of its peak beyond what its fitted floor
+# followed (_settling.py). On 160 default finger scenes (Patch B seeds 360-459, Patch A
+# 360-419, cell centres, no patch) 0.35 flagged 2 of 4,308 located sensors, one of them the
+# only sensor above 2 mm (2.38 mm at 5.2 sigma); 0.3 flagged 4 and 0.2 flagged 24
+# (docs/benchmarks.md, "Settling the fit did not follow").
+UNFOLLOWED_FRACTION = 0.35
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
@@ -133,7 +141,7 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         status[weak] = WEAK
     # Judged after `weak`: a sensor not yet probed near, whose "peak" is a wire ridge,
     # says so first.
-    drifting = drift > DRIFT_FRACTION
+    drifting = (drift > DRIFT_FRACTION) | (settling_missed(loc, at_fit) > UNFOLLOWED_FRACTION)
     status[(status == OK) & drifting] = DRIFTING
     ok = status == OK
     # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
@@ -231,6 +239,19 @@ def drift_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
     amp = f.theta[:, pm.AMP]
     with np.errstate(all="ignore"):
         return np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
+
+
+def settling_missed(loc: Localizer, inside: np.ndarray) -> np.ndarray:
+    """(N,) how far the board's settling moved each sensor's floor during the touches in its
+    own fit window (``inside``, (K, N)) beyond what its fitted floor followed, in its fitted
+    peak heights; 0 where the last batch solve saw no settling (_settling.py)."""
+    if loc._settling is None:
+        return np.zeros(len(loc.sensors))
+    course, level = loc._settling
+    f = loc.fit
+    tau = loc._tau()[:, None] - f.tc[None, :]
+    fitted_floor = pm.floor(tau, f.theta) * f.amp[None, :] + f.floor[None, :]
+    return unfollowed(course, level, fitted_floor, inside, f.theta[:, pm.AMP] * f.amp)
 
 
 def window_members(

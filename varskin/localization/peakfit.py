@@ -23,14 +23,17 @@ from varskin.localization import _peak_model as pm
 from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
+from varskin.localization._settling import board_settling
 from varskin.localization._statuses import (
     DEAD,
     DRIFT_FRACTION,
     DRIFTING,
     IRREGULAR,
     UNCERTAIN,
+    UNFOLLOWED_FRACTION,
     drift_during_own_touches,
     judge,
+    settling_missed,
     window_members,
 )
 from varskin.patch import Patch
@@ -327,6 +330,9 @@ class Localizer:
         # whether its map has two peaks that fit equally well (see _second_peaks).
         self._seed_k = np.full(n, -1)
         self._two_peaks = np.zeros(n, bool)
+        # The board's offset settling as the last batch solve saw it (_settling.py): its
+        # time course over the touches then, and each sensor's settled level; None: unknown.
+        self._settling: tuple[np.ndarray, np.ndarray] | None = None
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -839,6 +845,7 @@ class Localizer:
         self._t_from[:] = -np.inf
         self._seed_k[:] = -1
         self._two_peaks[:] = False
+        self._settling = None
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)
@@ -856,6 +863,7 @@ class Localizer:
                     self._settled = True
                     self._try_joint_settle()
                 self._second_peaks()
+                self._settling = self._board_settling()
                 self._refit_after_settling()
                 # Not for `joint`: there the check narrowed the robot's error bars to 2-sigma
                 # coverage 0.88-0.92 (docs/localizer.md, "Two batch solvers").
@@ -866,6 +874,22 @@ class Localizer:
                 ):
                     self._sigma_scale = sigma_scale(self)
         self._dirty = False
+
+    def _board_settling(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The board's settling from the fits as they stand (_settling.py); None where the
+        values are not relative to a measured rest (no baseline: no settling to speak of)."""
+        if self.rest is None:
+            return None
+        K, f = self._k, self.fit
+        V = np.where(self._missed[:K, None], np.nan, self._V[:K] * self._sign)
+        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        usable = f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0)
+        with np.errstate(all="ignore"):
+            noise = _nanmedian_cols(self._noise[:K])
+        if self.rest_sd is not None:  # logs without sample sds: the baseline's
+            noise = np.where(np.isfinite(noise), noise, self.rest_sd)
+        P = self._P[:K] + self._dxy[:K]
+        return board_settling(V, P, self._tau(), f.theta[:, :2], w, usable, noise)
 
     def _try_joint_settle(self) -> None:
         """From the settled alternation, joint rounds at its placement scale; kept only if
@@ -941,7 +965,10 @@ class Localizer:
         inside = window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
             drift = drift_during_own_touches(self, inside)
-        cols = np.flatnonzero(f.fitted & np.isfinite(drift) & (drift > DRIFT_FRACTION))
+            drifting = (np.isfinite(drift) & (drift > DRIFT_FRACTION)) | (
+                settling_missed(self, inside) > UNFOLLOWED_FRACTION
+            )
+        cols = np.flatnonzero(f.fitted & drifting)
         if cols.size == 0:
             return
         tau = self._tau()

@@ -1,0 +1,92 @@
+"""The board's offset settling as the sensors far from each touch saw it, and how much of it
+each sensor's own fit did not follow.
+
+Why a module of its own: after the no-contact baseline the offsets settle (real recordings
+drift by up to +-120 counts between the baseline and the touches), and the simulator has
+them settle within about a minute. A sensor probed only during that minute cannot tell its
+floor's rise from its own peak: with a finger's footprint every touch then lies on its bump,
+so its fitted floor rises only as far as the floor priors allow and the rest moves the peak.
+A weak sensor (peak ~90 counts) at Patch B's first TX wire ended 2.4 and 3.7 mm off at a
+sigma of 0.5-0.6 mm that way (docs/benchmarks.md, "Settling the fit did not follow"). The
+sensors far from those touches see their own floors settle at the same times. Assuming the
+settling keeps one time course across the board (each sensor its own size and sign), their
+far touches give that course, and each sensor's far touches late in the session give its
+size. This judges the fits; it does not correct them: a sensor whose floor moved during its
+own touches by more than its fit followed is `drifting`, with the reason, and a re-probe
+near it once the offsets are steady places it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# A touch is "far" from a sensor beyond this many fitted half widths (bump <= 6% of peak).
+FAR_WIDTHS = 4.0
+# A sensor's settled level is the median of its far touches in the session's second half;
+# it needs this many of them.
+MIN_LATE_TOUCHES = 5
+# Only sensors whose settled level stands this many per-touch noise sds clear of rest say
+# when the board settled; the others' ratios are noise.
+MIN_LEVEL_SDS = 5.0
+
+
+def board_settling(
+    V: np.ndarray,
+    P: np.ndarray,
+    tau: np.ndarray,
+    xy: np.ndarray,
+    w: np.ndarray,
+    usable: np.ndarray,
+    noise: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The settling's time course and each sensor's settled level.
+
+    ``V`` (K, N) values relative to rest (peak up, NaN where invalid), ``P`` (K, 2) where the
+    touches landed, ``tau`` (K,) session time, ``xy`` (N, 2) and ``w`` (N,) the fitted peaks
+    and half widths, ``usable`` (N,) which fits to trust, ``noise`` (N,) per-touch noise sd.
+    Returns ``course`` (K,): the fraction of its settled level a sensor's floor had reached
+    at each touch (0 at rest, NaN where no far sensor tells), and ``level`` (N,): each
+    sensor's settled floor (NaN where unknown), both in the values' units.
+    """
+    K, N = V.shape
+    course, level = np.full(K, np.nan), np.full(N, np.nan)
+    if K < 2 * MIN_LATE_TOUCHES or not usable.any():
+        return course, level
+    d = np.hypot(P[:, 0:1] - xy[None, :, 0], P[:, 1:2] - xy[None, :, 1])
+    far = (d > FAR_WIDTHS * w[None, :]) & np.isfinite(V) & usable[None, :]
+    late = far & (tau >= np.median(tau))[:, None]
+    enough = late.sum(axis=0) >= MIN_LATE_TOUCHES
+    if not enough.any():
+        return course, level
+    with np.errstate(all="ignore"):
+        level[enough] = np.nanmedian(np.where(late, V, np.nan)[:, enough], axis=0)
+    tells = enough & (np.abs(level) > MIN_LEVEL_SDS * np.where(np.isfinite(noise), noise, np.inf))
+    if not tells.any():
+        return course, level
+    ratio = np.where(far[:, tells], V[:, tells] / level[tells][None, :], np.nan)
+    has = np.isfinite(ratio).any(axis=1)
+    with np.errstate(all="ignore"):
+        course[has] = np.nanmedian(ratio[has], axis=1)
+    return course, level
+
+
+def unfollowed(
+    course: np.ndarray,
+    level: np.ndarray,
+    fitted_floor: np.ndarray,
+    inside: np.ndarray,
+    peak: np.ndarray,
+) -> np.ndarray:
+    """(N,) how far each sensor's floor moved during its own touches (``inside``, (K, N))
+    beyond what its fitted floor (``fitted_floor``, (K, N), the values' units) followed, in
+    its fitted ``peak`` heights; 0 where the settling is unknown."""
+    K = min(len(course), inside.shape[0])
+    settled = level[None, :] * course[:K, None]
+    gap = settled - fitted_floor[:K]
+    use = inside[:K] & np.isfinite(gap)
+    hi = np.where(use, gap, -np.inf).max(axis=0, initial=-np.inf)
+    lo = np.where(use, gap, np.inf).min(axis=0, initial=np.inf)
+    span = np.where(use.any(axis=0), hi - lo, 0.0)
+    with np.errstate(all="ignore"):
+        out = np.where(peak > 0, span / np.where(peak > 0, peak, 1.0), 0.0)
+    return np.where(np.isfinite(out), out, 0.0)
