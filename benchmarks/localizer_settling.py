@@ -62,8 +62,8 @@ def count(p, seeds) -> None:
         f, h = loc.fit, loc.spacing()
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
         inside = _statuses.window_members(loc, f.theta[:, :2], w, h)
-        missed = _statuses.settling_missed(loc, inside)
-        old = _statuses.drift_during_own_touches(loc, inside) > _statuses.DRIFT_FRACTION
+        own, missed = _statuses.drift_measures(loc, inside)
+        old = own > _statuses.DRIFT_FRACTION
         st = np.array([e.status for e in pr])
         new = (st == "drifting") & (missed > _statuses.UNFOLLOWED_FRACTION) & ~old
         located += int((st == "ok").sum() + new.sum())

@@ -117,7 +117,6 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         & (w < 20.0 * h)
     )
     at_fit = window_members(loc, th[:, :2], w, h)
-    drift = drift_during_own_touches(loc, at_fit)
     # The first reason that holds, in this order (a sensor gets one status).
     reasons = [
         (~f.fitted | (valid_counts < 3), SPARSE),
@@ -142,7 +141,7 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         status[weak] = WEAK
     # Judged after `weak`: a sensor not yet probed near, whose "peak" is a wire ridge,
     # says so first.
-    drifting = (drift > DRIFT_FRACTION) | (settling_missed(loc, at_fit) > UNFOLLOWED_FRACTION)
+    drifting = drifting_during_own_touches(loc, at_fit)
     status[(status == OK) & drifting] = DRIFTING
     ok = status == OK
     # A sensor whose own fit is too loose in one coordinate (beyond the last probe column,
@@ -227,32 +226,32 @@ def _inferred_wires(
     return groups
 
 
-def drift_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
-    """(N,) how far each sensor's fitted floor moves across the touches in its own fit
-    window (``inside``, (K, N) from ``window_members`` at the fitted peaks), in units of
-    its fitted peak height (inf where there is no peak)."""
+def drift_measures(loc: Localizer, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two (N,) measures, in fitted peak heights, of how far each sensor's floor moved across
+    the touches in its own fit window (``inside``, (K, N) from ``window_members`` at the
+    fitted peaks): its fitted floor's span (inf where there is no peak), and how far the
+    board's settling moved it beyond what that floor followed (0 where the last batch solve
+    saw no settling; _settling.py)."""
     f = loc.fit
-    tau = loc._tau()[:, None] - f.tc[None, :]
-    fl = pm.floor(tau, f.theta)
+    fl = pm.floor(loc._tau()[:, None] - f.tc[None, :], f.theta)  # in the map's units
     hi = np.where(inside, fl, -np.inf).max(axis=0)
     lo = np.where(inside, fl, np.inf).min(axis=0)
     span = np.where(inside.any(axis=0), hi - lo, 0.0)
     amp = f.theta[:, pm.AMP]
     with np.errstate(all="ignore"):
-        return np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
-
-
-def settling_missed(loc: Localizer, inside: np.ndarray) -> np.ndarray:
-    """(N,) how far the board's settling moved each sensor's floor during the touches in its
-    own fit window (``inside``, (K, N)) beyond what its fitted floor followed, in its fitted
-    peak heights; 0 where the last batch solve saw no settling (_settling.py)."""
+        own = np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
     if loc._settling is None:
-        return np.zeros(len(loc.sensors))
+        return own, np.zeros(len(loc.sensors))
     course, level = loc._settling
-    f = loc.fit
-    tau = loc._tau()[:, None] - f.tc[None, :]
-    fitted_floor = pm.floor(tau, f.theta) * f.amp[None, :] + f.floor[None, :]
-    return unfollowed(course, level, fitted_floor, inside, f.theta[:, pm.AMP] * f.amp)
+    fitted_floor = fl * f.amp[None, :] + f.floor[None, :]
+    return own, unfollowed(course, level, fitted_floor, inside, amp * f.amp)
+
+
+def drifting_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
+    """(N,) bool: the sensor's offset settled during its own touches faster than its fit
+    followed, by either of ``drift_measures`` (DRIFT_FRACTION, UNFOLLOWED_FRACTION)."""
+    own, missed = drift_measures(loc, inside)
+    return (np.isfinite(own) & (own > DRIFT_FRACTION)) | (missed > UNFOLLOWED_FRACTION)
 
 
 def window_members(

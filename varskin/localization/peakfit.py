@@ -26,14 +26,11 @@ from varskin.localization._joint import joint_step
 from varskin.localization._settling import board_settling
 from varskin.localization._statuses import (
     DEAD,
-    DRIFT_FRACTION,
     DRIFTING,
     IRREGULAR,
     UNCERTAIN,
-    UNFOLLOWED_FRACTION,
-    drift_during_own_touches,
+    drifting_during_own_touches,
     judge,
-    settling_missed,
     window_members,
 )
 from varskin.patch import Patch
@@ -964,10 +961,7 @@ class Localizer:
         w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
         inside = window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
-            drift = drift_during_own_touches(self, inside)
-            drifting = (np.isfinite(drift) & (drift > DRIFT_FRACTION)) | (
-                settling_missed(self, inside) > UNFOLLOWED_FRACTION
-            )
+            drifting = drifting_during_own_touches(self, inside)
         cols = np.flatnonzero(f.fitted & drifting)
         if cols.size == 0:
             return
