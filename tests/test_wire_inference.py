@@ -66,6 +66,35 @@ def test_an_extrapolated_last_column_keeps_its_wire_by_rank(patch_b):
     assert (gx[last] >= 0).all() and len(set(gx[last])) == 1
 
 
+@pytest.mark.parametrize(("loose_x_mm", "ranked"), [(152.4, True), (135.0, False)])
+def test_a_row_completed_by_a_loose_sensor_is_ranked(patch_b, loose_x_mm, ranked):
+    """Patch B finger, seed 540: S28 too loose to be located beyond the last probe column,
+    and S25 between the last two columns, reaching both. Neither joins a column alone; once
+    S28 has joined its row, the row has a sensor for every column and is ranked, which
+    gives S25 the last column but one and S28 the last. A loose sensor whose rank would
+    take a column its row already holds (fitted inside the last column but two) leaves the
+    row as it was."""
+    tx, rx = wires_of(patch_b)
+    rng = np.random.default_rng(9)
+    xy = patch_b.design_xy + rng.normal(0, 0.2, patch_b.design_xy.shape)
+    sd = np.full((len(tx), 2), 0.2)
+    s25, s28 = 24, 27
+    assert tx[s28] == tx.max() and tx[s25] == tx.max() - 1 and rx[s25] == rx[s28]
+    xy[s25, 0], sd[s25, 0] = 146.3, 1.3  # 1.0 and 2.1 mm from the two columns' centres
+    xy[s28, 0], sd[s28, 0] = loose_x_mm, 3.5
+    located = np.ones(len(tx), bool)
+    located[s28] = False
+    gx, gy = infer_wires(xy, sd, located, ~located, 0.25)
+    assert same_partition(gx, tx) and same_partition(gy, rx)
+    assert gy[s28] == gy[s25]  # S28 joined its row either way
+    if ranked:
+        assert gx[s25] == gx[s25 + 1] and gx[s28] == gx[s28 + 1]
+        assert (gx >= 0).all()
+    else:
+        assert gx[s25] == -1 and gx[s28] == -1
+        assert (np.delete(gx, [s25, s28]) >= 0).all()
+
+
 def test_columns_too_close_to_tell_apart_get_no_wire(patch_b):
     """Patch B's last two TX wires are 3.2 mm apart: with 1 mm fits the ranks within a row
     may swap, so those two columns keep no TX wire; the others and every row do."""

@@ -22,8 +22,9 @@ wire, where no answer leaves them as they were.
   REACH_SDS of it; an unclear column's sensors keep only their row.
 * Loose sensors (set aside, on an incomplete row, or too loose to be located) join the
   one row or column within JOIN_SDS of them, if every other is beyond REACH_SDS and the
-  odds for it against the next nearest are at least JOIN_ODDS to 1. One still without a
-  row may join a column on x alone, then the one row free in that column.
+  odds for it against the next nearest are at least JOIN_ODDS to 1. A row they complete
+  is then ranked along x as the complete rows were. One still without a row may join a
+  column on x alone, then the one row free in that column.
 * Refused: a located sensor out of reach of every row (a row was missed), a row with more
   sensors than columns, or complete rows that leave most sensors in unclear columns (rows
   that merge two wires rank the sensors of one column apart).
@@ -148,8 +149,44 @@ def infer_wires(
             held = gx[(gy == gy[i]) & (gx >= 0)]  # one sensor per crossing
             gx[i] = col_family.join(xy[i, 0], sd[i, 0], held)
     if col_family is not None:
+        _rank_completed_rows(xy[:, 0], sd[:, 0], finite, gx, gy, col_family)
         _row_from_column(xy, sd, finite, gx, gy, row_family, col_family)
     return gx, gy
+
+
+def _rank_completed_rows(
+    x: np.ndarray,
+    sd: np.ndarray,
+    finite: np.ndarray,
+    gx: np.ndarray,
+    gy: np.ndarray,
+    col_family: _Family,
+) -> None:
+    """Rank a row that its loose sensors completed, as the complete rows were, in place.
+
+    A sensor of an incomplete row joins a column alone, at clear odds; two neighbours that
+    are each unsure then both stay without one, though the row leaves them just the two
+    columns. Patch B finger, seed 540 (cell centres): S28, beyond the last probe column
+    (fitted 4 mm beyond, sd 3.5 mm along x), was too loose to be located, so its row was
+    incomplete; S25, 0.7 mm from its column's centre and 1.4 mm from the next with a 1.3 mm
+    sd, joined neither, and S28 reached both: no TX wire for either, and S28 4.0 mm off.
+    Once the loose sensors have joined, a row with a sensor for every column is ranked along
+    x, if the ranks agree with every column its sensors already hold, each column it gives
+    is clear, and each sensor lies within reach of its column's centre.
+    """
+    cols = col_family.centre.size
+    for r in np.unique(gy[finite & (gy >= 0)]):
+        m = np.flatnonzero(finite & (gy == r))
+        if m.size != cols or (gx[m] >= 0).all():
+            continue
+        m = m[np.argsort(x[m], kind="stable")]
+        rank = np.arange(cols)
+        held = gx[m] >= 0
+        if (gx[m][held] != rank[held]).any() or not col_family.clear[rank[~held]].all():
+            continue
+        new = m[~held]
+        if col_family.holds(x[new], sd[new], rank[~held]).all():
+            gx[new] = rank[~held]
 
 
 def _row_from_column(
