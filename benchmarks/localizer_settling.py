@@ -60,7 +60,7 @@ def count(p, seeds) -> None:
         loc = peakfit.solved(s.point_logs())
         pr = loc.result()
         f, h = loc.fit, loc.spacing()
-        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        w = pm.half_width(f.theta)
         inside = _statuses.window_members(loc, f.theta[:, :2], w, h)
         own, missed = _statuses.drift_measures(loc, inside)
         old = own > _statuses.DRIFT_FRACTION

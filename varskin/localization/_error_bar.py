@@ -73,7 +73,7 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     were simulated (the others keep their real readings: they have no model to draw from)."""
     f = loc.fit
     K = loc.n_logs
-    model_ok = f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0)
+    model_ok = f.has_model()
     cols = np.flatnonzero(model_ok)
     sim = copy.deepcopy(loc)
     if cols.size == 0:

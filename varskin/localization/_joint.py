@@ -43,7 +43,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     f = loc.fit
     K = loc._k
     s = loc.settings
-    cols = np.flatnonzero(f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0))
+    cols = np.flatnonzero(f.has_model())
     S = cols.size
     if S == 0 or K < 3:
         return False
@@ -56,7 +56,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
 
     # The touches inside each sensor's window, gathered into (M, S) as the fit does.
     Pe = P0 + d
-    w = np.exp(0.5 * (theta[:, pm.LW] + theta[:, pm.LWY]))
+    w = pm.half_width(theta)
     reach = 1.5 * np.maximum(s.window_widths * w, min_radius)
     dist = np.hypot(Pe[:, 0:1] - theta[:, pm.SX], Pe[:, 1:2] - theta[:, pm.SY])
     V = loc._V[:K][:, cols] * loc._sign

@@ -89,9 +89,15 @@ def lorentz(P: np.ndarray, theta: np.ndarray):
     return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy), (dx, dy)
 
 
+def half_width(theta: np.ndarray) -> np.ndarray:
+    """The footprint's half width (mm) of each fit in ``theta`` (..., N_PARAMS): the
+    geometric mean of its x and y half widths."""
+    return np.exp(0.5 * (theta[..., LW] + theta[..., LWY]))
+
+
 def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
     """Compact fit window (K,S): 1 inside R, cosine taper to 0 at 1.5 R, exactly 0 beyond."""
-    w = np.exp(0.5 * (theta[..., LW] + theta[..., LWY]))
+    w = half_width(theta)
     radius = np.maximum(s.window_widths * w, min_radius)
     X, Y = _xy(P)
     d = np.hypot(X - theta[..., SX], Y - theta[..., SY])
@@ -273,7 +279,7 @@ def fit(
     G_all = np.ones(K) if gain is None else gain
     # Only the touches near each sensor can carry weight (the window is compact): gather
     # them into (M, S) arrays so a full board costs what its neighbourhoods cost.
-    w0 = np.exp(0.5 * (theta[:, LW] + theta[:, LWY]))
+    w0 = half_width(theta)
     # Window (1.5 R) of a footprint up to 1.4x wider than the start, plus room to move.
     reach = 1.5 * np.maximum(s.window_widths * w0 * 1.4, min_radius) + 0.5 * np.maximum(
         s.window_widths * w0, min_radius
@@ -431,7 +437,7 @@ def fit(
             var_touch += 0.5 * part
     # A sensor that wandered beyond the gathered touches would miss data: not converged.
     strayed = np.hypot(*(theta[:, :2] - start_xy).T) > reach - 1.5 * np.maximum(
-        s.window_widths * np.exp(0.5 * (theta[:, LW] + theta[:, LWY])), min_radius
+        s.window_widths * half_width(theta), min_radius
     )
     converged &= ~strayed
     return FitResult(

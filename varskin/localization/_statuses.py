@@ -82,7 +82,7 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     th = f.theta
     xy = th[:, :2].copy()
     h = loc.spacing()
-    w = np.exp(0.5 * (th[:, pm.LW] + th[:, pm.LWY]))
+    w = pm.half_width(th)
     margin = np.maximum(0.5 * h, 0.5 * w)
     dist_out, normal, collinear = hull_distance(loc._probe_hull(), xy)
     # Judged on the fit itself: beyond the hull by more than the margin AND by more than

@@ -248,6 +248,11 @@ class _SensorFit:
     n_clipped: np.ndarray  # (N,) touches excluded as clipped
     tc: np.ndarray  # (N,) session time (min) of the sensor's largest reading: drift origin
 
+    def has_model(self) -> np.ndarray:
+        """(N,) bool: a fit with finite parameters and a positive peak, a model to predict
+        from."""
+        return self.fitted & np.isfinite(self.theta).all(axis=1) & (self.theta[:, pm.AMP] > 0)
+
     def copy_of(self, cols=slice(None)) -> dict:
         """Every field's values for the sensors ``cols`` (default all), for ``put``."""
         return {name: getattr(self, name)[cols].copy() for name in self.__dataclass_fields__}
@@ -555,7 +560,7 @@ class Localizer:
         start = theta0[:, :2].copy()
         # A previous fit far from where the data now peak is no start: begin afresh there,
         # exactly as a batch solve would.
-        w_old = np.exp(0.5 * (f.theta[cols, pm.LW] + f.theta[cols, pm.LWY]))
+        w_old = pm.half_width(f.theta[cols])
         far = np.hypot(*(f.theta[cols, :2] - start).T) > np.maximum(2.0 * w_old, 2.0 * h)
         warm = warm & f.fitted[cols] & ~far & np.isfinite(f.theta[cols]).all(axis=1)
         if (~warm).any():
@@ -673,9 +678,7 @@ class Localizer:
         Returns the posterior variances (log gain, mean axis mm^2).
         """
         f = self.fit
-        cols = np.flatnonzero(
-            f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0)
-        )
+        cols = np.flatnonzero(f.has_model())
         R = rows.size
         if cols.size == 0 or R == 0:
             return np.zeros(R), np.zeros(R)
@@ -684,7 +687,7 @@ class Localizer:
         # Only the sensors whose fit window can contain a touch say anything about it:
         # gather them per touch, (R, M) with M the most any touch has.
         thc = f.theta[cols]
-        wc = np.exp(0.5 * (thc[:, pm.LW] + thc[:, pm.LWY]))
+        wc = pm.half_width(thc)
         reach = (
             1.5 * np.maximum(self.settings.window_widths * wc, min_radius) + 4.0 * self.place_sd_mm
         )
@@ -808,10 +811,7 @@ class Localizer:
 
     def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
         lw = self.shared_lw if self.shared_lw is not None else None
-        if lw is None:
-            w = np.exp(0.5 * (theta[:, pm.LW] + theta[:, pm.LWY]))
-        else:
-            w = np.full(n, float(np.exp(lw.mean())))
+        w = pm.half_width(theta) if lw is None else np.full(n, float(np.exp(lw.mean())))
         return pm.RIDGE_FRACTION * w
 
     def _shared_width(self) -> None:
@@ -879,8 +879,8 @@ class Localizer:
             return None
         K, f = self._k, self.fit
         V = np.where(self._missed[:K, None], np.nan, self._V[:K] * self._sign)
-        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
-        usable = f.fitted & np.isfinite(f.theta).all(axis=1) & (f.theta[:, pm.AMP] > 0)
+        w = pm.half_width(f.theta)
+        usable = f.has_model()
         with np.errstate(all="ignore"):
             noise = _nanmedian_cols(self._noise[:K])
         if self.rest_sd is not None:  # logs without sample sds: the baseline's
@@ -958,7 +958,7 @@ class Localizer:
         """
         f = self.fit
         h = self.spacing()
-        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        w = pm.half_width(f.theta)
         inside = window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
             drifting = drifting_during_own_touches(self, inside)
@@ -1088,7 +1088,7 @@ class Localizer:
             self._dirty = False
             return self._current()
         p = self._P[k]  # the touch's own placement offset is estimated below
-        w = np.exp(0.5 * (f.theta[:, pm.LW] + f.theta[:, pm.LWY]))
+        w = pm.half_width(f.theta)
         radius = (
             np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
         )
