@@ -7,8 +7,9 @@ grid, robot and finger:
 
 * the last update against ``localize`` on the same logs: the gap (mm, and in units of the
   live sigma_mm) of the sensors `ok` in both, and how many sensors are `ok` in one only;
-* over updates 50-100: how many sensors the live view calls `ok`, and the RMS error of
-  those against the scene's truth (median over updates and seeds).
+* over updates 50-100: how many sensors the live view calls `ok`, the RMS error of those
+  against the scene's truth (median over updates and seeds), and the fraction of them
+  whose error is within 2x their live sigma_mm (pooled over updates and seeds).
 
 Run as ``python benchmarks/localizer_live.py [--seeds 0-15]`` (about 1 s per session).
 """
@@ -39,13 +40,15 @@ def one_session(patch, probe: str, seed: int) -> dict:
     s = simulate_session(patch, uniform_grid(patch, 20, 5), probe=probe, seed=seed)
     logs = s.point_logs()
     loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch)
-    n_ok, live_rms = [], []
+    n_ok, live_rms, within = [], [], []
     live = None
     for k, log in enumerate(logs.logs(), 1):
         live = loc.update(log)
         if k >= 50:
             ok = np.array([e.status == OK for e in live])
             e = np.hypot(*(live.xy() - s.truth).T)[ok]
+            sig = np.array([x.sigma_mm for x in live.estimates], dtype=float)[ok]
+            within += (e <= 2.0 * sig).tolist()
             n_ok.append(int(ok.sum()))
             if ok.any():
                 live_rms.append(float(np.sqrt(np.mean(e**2))))
@@ -62,6 +65,7 @@ def one_session(patch, probe: str, seed: int) -> dict:
         "one_side": int((ok_l ^ ok_b).sum()),
         "n_ok": n_ok,
         "rms": live_rms,
+        "within": within,
     }
 
 
@@ -82,7 +86,8 @@ def main() -> int:
             f"sensors ok in one only: median {statistics.median(r['one_side'] for r in runs)}, "
             f"max {max(r['one_side'] for r in runs)} of 30; "
             f"updates 50-100: mean ok {np.mean([n for r in runs for n in r['n_ok']]):.1f}, "
-            f"live RMS median {np.median([x for r in runs for x in r['rms']]):.3f} mm"
+            f"live RMS median {np.median([x for r in runs for x in r['rms']]):.3f} mm, "
+            f"within 2 sigma {np.mean([x for r in runs for x in r['within']]):.3f}"
         )
     return 0
 
