@@ -206,6 +206,7 @@ class _ControllerCore:
         self._out_double: dict[int, float] = {}
         self._script_running = False
         self._executing_cmd = False
+        self._logged_realtime_cmd: int | None = None
         self._busy: str | None = None  # a blocking command in progress ("move", "stop")
         self._protective_stop = False
         self._protective_stop_t: float | None = None
@@ -336,6 +337,11 @@ class _ControllerCore:
             return tuple(float(v) for v in self._pose)
 
     @property
+    def sim_time_s(self) -> float:
+        with self._lock:
+            return self._sim_t
+
+    @property
     def protective_stopped(self) -> bool:
         with self._lock:
             return self._protective_stop
@@ -380,10 +386,16 @@ class _ControllerCore:
                 self._out_int[0] = wire.UR_DONE
             return
         cmd = self._in_int.get(0, 0)
+        if cmd != self._logged_realtime_cmd:
+            self._logged_realtime_cmd = None
         if cmd == wire.CMD_NONE:
             self._executing_cmd = False
             self._out_int[0] = wire.UR_READY
         elif cmd in wire.REALTIME_CMDS:
+            # processed in every cycle the register holds it; logged once, when it arrives
+            if self._logged_realtime_cmd is None:
+                self._logged_realtime_cmd = cmd
+                self.commands.append((self._sim_t, cmd))
             self._process(cmd)
             self._out_int[0] = wire.UR_READY
         elif not self._executing_cmd:
@@ -980,7 +992,7 @@ class _SharedProbeState(ProbeState):
 _RPC_METHODS = {
     "inject_protective_stop", "stop_script", "drop_connections", "force_log", "tcp_log", "clear_logs",
     "tcp_pose", "protective_stopped", "script_running", "dashboard_reply", "commands_log", "scripts_received", "dashboard_log",
-    "tool",
+    "tool", "sim_time_s",
 }  # fmt: skip
 
 
@@ -1148,6 +1160,12 @@ class SimulatedController:
     @property
     def tcp_pose(self) -> tuple[float, ...]:
         return self._rpc("tcp_pose")
+
+    @property
+    def sim_time_s(self) -> float:
+        """The controller's clock now: simulated seconds, the time base of the logs. It lags
+        ``time_scale`` x the wall clock when the host starves the controller's process."""
+        return self._rpc("sim_time_s")
 
     @property
     def protective_stopped(self) -> bool:
