@@ -17,8 +17,9 @@ with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs
 unless ``--prior`` says otherwise; the paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
 paper method over the sensors both located, max error, how many ``ok`` sensors are above
-2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, and the
-silent failures.
+2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, the response
+shapes its scenes chose (L, G, E: Lorentzian, Gaussian, exponential, with their counts),
+and the silent failures.
 """
 
 from __future__ import annotations
@@ -126,6 +127,7 @@ def one_scene(job):
         "ep_both": ep[both],
         "silent": silent,
         "place_sd": pf.params["touch_placement_sd_mm"],
+        "shape": pf.params["response_shape"],
     }
 
 
@@ -167,9 +169,10 @@ def main() -> None:
             rows.setdefault(r["key"], []).append(r)
     print(
         "| variant | patch | probe | located | peakfit RMS | paper RMS (same sensors) | ratio "
-        "| max | ok > 2 mm | 2 sigma | placement sd, estimated (median) | silent failures |"
+        "| max | ok > 2 mm | 2 sigma | placement sd, estimated (median) | shape chosen "
+        "| silent failures |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for key, rs in rows.items():
         ok = sum(r["ok"] for r in rs)
         n = sum(r["n"] for r in rs)
@@ -181,11 +184,13 @@ def main() -> None:
         desc = ", ".join(
             f"{seed}:{name} {e:.1f} mm (sigma {sg:.2f})" for seed, name, e, sg in silent
         )
+        shapes = [r["shape"] for r in rs]
+        chosen = " ".join(f"{sh[0].upper()}{shapes.count(sh)}" for sh in sorted(set(shapes)))
         print(
             f"| {key[0]} | {key[1][-1].upper()} | {key[2]} | {ok}/{n} | {_rms(ef):.3f} mm "
             f"| {_rms(pb):.3f} mm | {_rms(fb) / _rms(pb):.2f} | {ef.max():.2f} mm "
             f"| {int((ef > 2.0).sum())} | {cov.mean():.3f} "
-            f"| {np.median([r['place_sd'] for r in rs]):.2f} mm "
+            f"| {np.median([r['place_sd'] for r in rs]):.2f} mm | {chosen} "
             f"| {len(silent)}{': ' + desc if desc else ''} |",
             flush=True,
         )

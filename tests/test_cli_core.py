@@ -350,3 +350,32 @@ def test_localize_settle_rounds_reaches_the_solver_and_refuses_bad_counts(
         assert main(["localize", str(logs), "-q", *bad]) == 2
         err = capsys.readouterr().err
         assert "settle_rounds" in err and "Traceback" not in err and err.count("\n") == 1, err
+
+
+def test_localize_response_shape_fixes_the_profile_or_lets_the_patch_choose(simulated, capsys):
+    """``--response-shape gaussian`` fits that profile (the summary says so); the default,
+    auto, keeps the Lorentzian on this Lorentzian scene and reports the test it ran. An
+    unknown shape is argparse's one-line error."""
+    from varskin.localization import localize
+    from varskin.patch import builtin_patch
+    from varskin.pointlog_csv import read_point_logs
+
+    logs, _ = simulated
+    args = ["localize", str(logs), "--patch", "patch_b", "--first-order-sigma"]
+    kw = {"calibrate_sigma": False, "patch": builtin_patch("patch_b")}
+    capsys.readouterr()
+    assert main([*args, "--response-shape", "gaussian"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.endswith("wires from the patch; gaussian response"), last
+    fixed = localize(read_point_logs(logs), response_shape="gaussian", **kw)
+    auto = localize(read_point_logs(logs), **kw)
+    assert fixed.params["response_shape"] == "gaussian" and "response_shape_z" not in fixed.params
+    assert auto.params["response_shape"] == "lorentzian"
+    assert auto.params["response_shape_z"] > -3.0
+    assert np.nanmax(np.abs(fixed.xy() - auto.xy())) > 0.01  # the profile moved them
+    assert main([*args]) == 0
+    assert capsys.readouterr().out.strip().splitlines()[-1].endswith("wires from the patch")
+    with pytest.raises(SystemExit):
+        main([*args, "--response-shape", "sech"])
+    err = capsys.readouterr().err
+    assert "invalid choice: 'sech'" in err and "Traceback" not in err

@@ -92,7 +92,8 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     # (on the scenes with another response shape, an earlier version of this check with
     # Gaussian noise of the residuals' size gave 67-86% coverage with the robot; these
     # residuals give 85-96%, one-off runs).
-    fitted = pm.model(at, tau, th, np.exp(loc._lg[:K]), rho)
+    shape = loc.settings.shape
+    fitted = pm.model(at, tau, th, np.exp(loc._lg[:K]), rho, shape)
     resid = np.nan_to_num((real - f.floor[cols]) / f.amp[cols] - fitted)
     # A fit's residuals are smaller than its noise: its N_PARAMS parameters took up part of
     # it. Scaled back as the residual variance's own degrees of freedom say.
@@ -101,7 +102,7 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     flip = rng.choice([-1.0, 1.0], size=(K, 1))
     landed = at + rng.normal(0.0, loc.place_sd_mm, (K, 2))
     gains = np.exp(rng.normal(0.0, loc.gain_sd, K))
-    u = pm.model(landed, tau, th, gains, rho) + flip * resid
+    u = pm.model(landed, tau, th, gains, rho, shape) + flip * resid
     values = (f.floor[cols] + f.amp[cols] * u) * loc._sign
     # Only what a fit saw can be simulated from it: beyond its window the model's floor is
     # a quadratic in time extrapolated over the whole session, and mirrored residuals

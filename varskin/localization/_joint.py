@@ -78,12 +78,12 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     c2 = s.cauchy_c**2
 
     def cost(th: np.ndarray, lg_: np.ndarray, d_: np.ndarray) -> float:
-        r = U - pm.model((P0 + d_)[order], tau, th, np.exp(lg_)[order], rho)
+        r = U - pm.model((P0 + d_)[order], tau, th, np.exp(lg_)[order], rho, s.shape)
         data = c2 * float((win * np.log1p((r / (s.cauchy_c * sc)) ** 2)).sum())
         z = np.column_stack([lg_, d_])
         return data + float(pm.prior_cost_of(th, Q, mu, s).sum()) + float((z * z * prior_t).sum())
 
-    m, J = pm.jacobian(Pe[order], tau, theta, np.exp(lg)[order], rho)
+    m, J = pm.jacobian(Pe[order], tau, theta, np.exp(lg)[order], rho, s.shape)
     r = U - m
     z = r / (s.cauchy_c * sc)
     wgt = win / (1.0 + z * z) / (sc * sc)  # IRLS weights of the Cauchy loss, per sensor

@@ -8,8 +8,8 @@ The model of one sensor's map, in that sensor's normalized units, is
     m(p, t) = b0 + b1 tau + b2 tau^2
               + G (a / (1 + (x - sx)^2 / wx^2 + (y - sy)^2 / wy^2) + c_rx R(y - sy) + c_tx R(x - sx))
 
-a Lorentzian bump at the sensor position ``s`` of height ``a`` and half widths ``wx``, ``wy``
-along the wires (a crossing's footprint is not round), narrow ridges ``R`` where the probe
+a bump at the sensor position ``s`` of height ``a`` and half widths ``wx``, ``wy`` along the
+wires (a crossing's footprint is not round), narrow ridges ``R`` where the probe
 couples along the sensor's own RX and TX wires, ``G`` the touch's pressing gain, over a
 floor that may drift smoothly in session time (``tau`` in minutes from the sensor's peak
 time, so weak priors on slope and curvature keep drift from mimicking a shift of the peak
@@ -19,6 +19,12 @@ model does not know, never matter; residuals get Cauchy weights so missed touche
 and a wrong shape cannot drag the estimate. All sensors are solved together with a
 vectorized Levenberg-Marquardt (numpy, no per-sensor Python loop), which keeps a full board
 fast.
+
+The bump shown is the Lorentzian, ``phi(q) = 1 / (1 + q)`` of the squared normalized distance
+``q``. ``FitSettings.shape`` swaps in a Gaussian, ``2^-q``, or an exponential in distance,
+``2^-sqrt(q)`` (rounded off within 5% of the half width so the fit has a gradient at the
+top): every one is at half height at ``q = 1``, so the half widths, and the window built
+from them, mean the same in all three.
 """
 
 from __future__ import annotations
@@ -27,6 +33,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SHAPES = ("lorentzian", "gaussian", "exponential")
+_LN2 = float(np.log(2.0))
+_TIP = 0.05  # the exponential's rounded top, in half widths
+_TIP_NORM = float(np.sqrt(1.0 + _TIP**2) - _TIP)
 N_PARAMS = 10  # sx, sy, log wx, log wy, a, b0, b1, b2, ridge along RX (y = sy), along TX
 SX, SY, LW, LWY, AMP, B0, B1, B2, CRX, CTX = range(N_PARAMS)
 WIDTHS = slice(LW, LWY + 1)  # both log widths, as a view
@@ -59,6 +69,7 @@ class FitSettings:
     ridge_prior_sd: float = 0.1  # wire-ridge height prior, in peak heights
     max_iter: int = 100
     step_tol_mm: float = 2e-4
+    shape: str = "lorentzian"  # the bump's profile, one of SHAPES
 
 
 def _xy(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -72,9 +83,25 @@ def _per_touch(G: np.ndarray) -> np.ndarray:
     return G[:, None] if G.ndim == 1 else G
 
 
-def lorentz(P: np.ndarray, theta: np.ndarray):
-    """Shape g, the x and y parts of the squared normalized distance, inverse widths^2,
-    and the signed distances from the peak (which the Jacobian and the ridges reuse).
+def profile(rx: np.ndarray, ry: np.ndarray, shape: str = "lorentzian"):
+    """The bump's height at squared normalized distance ``q = rx + ry`` (1 at the top, 1/2
+    at q = 1) and its fall with q, -d phi / d q."""
+    if shape == "lorentzian":
+        g = 1.0 / (1.0 + rx + ry)
+        return g, g * g
+    q = rx + ry
+    if shape == "gaussian":
+        g = np.exp(-_LN2 * q)
+        return g, _LN2 * g
+    r = np.sqrt(q + _TIP * _TIP)
+    g = np.exp(-_LN2 * (r - _TIP) / _TIP_NORM)
+    return g, (0.5 * _LN2 / _TIP_NORM) * g / r
+
+
+def bump(P: np.ndarray, theta: np.ndarray, shape: str = "lorentzian"):
+    """Shape g, its fall -dg/dq, the x and y parts of the squared normalized distance q,
+    inverse widths^2, and the signed distances from the peak (which the Jacobian and the
+    ridges reuse).
 
     Shapes broadcast: theta (S,P) against probes (K,2) gives (K,S); theta (R,M,P) (sensors
     gathered per touch) against probes (R,2) gives (R,M).
@@ -86,7 +113,8 @@ def lorentz(P: np.ndarray, theta: np.ndarray):
     dy = Y - theta[..., SY]
     rx = dx * dx * iwx
     ry = dy * dy * iwy
-    return 1.0 / (1.0 + rx + ry), (rx, ry), (iwx, iwy), (dx, dy)
+    g, fall = profile(rx, ry, shape)
+    return g, fall, (rx, ry), (iwx, iwy), (dx, dy)
 
 
 def half_width(theta: np.ndarray) -> np.ndarray:
@@ -121,9 +149,9 @@ def ridges(P, theta, rho, d=None):
     return np.exp(-0.5 * dy * dy * r2), np.exp(-0.5 * dx * dx * r2), dx, dy, r2
 
 
-def model(P, tau, theta, G=None, rho=None):
+def model(P, tau, theta, G=None, rho=None, shape="lorentzian"):
     """Model values (K,S); ``G`` (K,) is each touch's relative pressing gain (default 1)."""
-    g, _, _, dxy = lorentz(P, theta)
+    g, _, _, _, dxy = bump(P, theta, shape)
     if G is not None:
         g = g * _per_touch(G)
     m = floor(tau, theta) + theta[..., AMP] * g
@@ -143,11 +171,13 @@ def floor(tau, theta):
     return theta[..., B0] + (theta[..., B1] + theta[..., B2] * tau) * tau
 
 
-def jacobian(P, tau, theta, G=None, rho=None) -> tuple[np.ndarray, np.ndarray]:
+def jacobian(P, tau, theta, G=None, rho=None, shape="lorentzian") -> tuple[np.ndarray, np.ndarray]:
     """Model (K,S) and its Jacobian (K,S,N_PARAMS)."""
-    g, (rx, ry), (iwx, iwy), dxy = lorentz(P, theta)
+    g, fall, (rx, ry), (iwx, iwy), dxy = bump(P, theta, shape)
     a = theta[..., AMP]
-    k2 = 2.0 * a * g * g
+    # The Lorentzian's product in its own order: the same floating-point result as before
+    # the other shapes came, so the benchmarks of it still hold to the last bit.
+    k2 = 2.0 * a * g * g if shape == "lorentzian" else 2.0 * a * fall
     if G is not None:
         k2 = k2 * _per_touch(G)
         g = g * _per_touch(G)
@@ -324,7 +354,12 @@ def fit(
         # must not make the cost vanish. ``r``: the residuals at ``th`` if already known.
         if r is None:
             r = Uz[:, cols] - model(
-                P[:, cols], tau[:, cols], th, gain[:, cols], None if rho is None else rho[cols]
+                P[:, cols],
+                tau[:, cols],
+                th,
+                gain[:, cols],
+                None if rho is None else rho[cols],
+                s.shape,
             )
         z2 = (r / (s.cauchy_c * sc[None, :])) ** 2
         # Cauchy loss over the window: bounded influence of any single touch.
@@ -339,7 +374,12 @@ def fit(
         sub_all = slice(None) if idx.size == S else idx
         th = theta[idx]
         m, J = jacobian(
-            P[:, sub_all], tau[:, sub_all], th, gain[:, sub_all], None if rho is None else rho[idx]
+            P[:, sub_all],
+            tau[:, sub_all],
+            th,
+            gain[:, sub_all],
+            None if rho is None else rho[idx],
+            s.shape,
         )
         res = Uz[:, sub_all] - m
         win = fit_window(th, sub_all)
@@ -406,7 +446,7 @@ def fit(
         converged[idx[done & ~accepted]] = True  # no better point nearby: a local minimum
         active[idx[done]] = False
     # Final weights and covariance at the solution.
-    m, J = jacobian(P, tau, theta, gain, rho)
+    m, J = jacobian(P, tau, theta, gain, rho, s.shape)
     res = Uz - m
     win = fit_window(theta, np.arange(S))
     wts = robust_weights(win, res, scale)

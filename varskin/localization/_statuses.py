@@ -69,6 +69,11 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     params["touch_gain_sd"] = float(loc.gain_sd)
     # The error-bar check's factor on every sigma (1: not run, or nothing to change).
     params["sigma_scale"] = float(loc._sigma_scale)
+    # The bump's profile the fits used, and the paired z of the best other one (the more
+    # negative, the more the maps favoured it; absent: not tested).
+    params["response_shape"] = loc.settings.shape
+    if loc._shape_z is not None:
+        params["response_shape_z"] = loc._shape_z
     # A settled solve's joint rounds: the placement scatter they implied over the one they
     # were held to, and whether they were kept (peakfit.JOINT_SETTLE_GUARD).
     if loc._joint_ratio is not None:

@@ -75,6 +75,12 @@ FINGER_LIKE_MM = 0.4
 JOINT_SETTLE_ROUNDS = 8
 JOINT_SETTLE_GUARD = 1.15
 JOINT_STEPS = 2
+# The response shape (``response_shape`` "auto"): another of pm.SHAPES replaces the
+# Lorentzian only if the paired test over sensors favours it beyond SHAPE_Z standard errors,
+# with at least SHAPE_MIN_SENSORS sensors to test on (_favoured_shape).
+SHAPE_Z = 3.0
+SHAPE_MIN_SENSORS = 8
+SHAPE_SCREEN_ROUNDS = 2
 # LM iterations per sensor in a polish round (warm-started). Located sensors converge in a
 # few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
 POLISH_MAX_ITER: int | None = 25
@@ -123,9 +129,12 @@ DEFAULTS: dict = {
     # underestimate (docs/localizer.md, Known limits). None: estimated only.
     "placement_sd_mm": None,
     # Scale every sigma by what the same solve gets wrong on sessions simulated from its own
-    # fits (_error_bar.py); False: the first-order propagation alone (2-3x faster batch).
+    # fits (_error_bar.py); False: the first-order propagation alone (1.3-3x faster batch).
     # The `joint` solver always reports the first-order sigma.
     "calibrate_sigma": True,
+    # The bump's profile (pm.SHAPES: "lorentzian", "gaussian", "exponential"), or "auto": the
+    # Lorentzian unless the maps favour another (_favoured_shape).
+    "response_shape": "auto",
 }
 
 # A `drifting` sensor probed again after the probe was away for more than this many
@@ -189,6 +198,11 @@ def check_params(params: dict) -> dict:
         if isinstance(rounds, bool) or not isinstance(rounds, (int, np.integer)) or rounds < 0:
             unset = " or unset" if key == "joint_settle_rounds" else ""
             raise InputError(f"{NAME}: {key} must be a whole number >= 0{unset}, got {rounds!r}")
+    if out["response_shape"] != "auto" and out["response_shape"] not in pm.SHAPES:
+        raise InputError(
+            f"{NAME}: response_shape must be auto or one of {', '.join(pm.SHAPES)}, "
+            f"got {out['response_shape']!r}"
+        )
     if out["solver"] not in SOLVER_ROUNDS:
         raise InputError(
             f"{NAME}: solver must be one of {', '.join(SOLVER_ROUNDS)}, got {out['solver']!r}"
@@ -280,10 +294,14 @@ class Localizer:
         self.rest = _finite_or_none(rest, n, "rest")
         self.rest_sd = _finite_or_none(rest_sd, n, "rest_sd")
         self._raw: bool | None = None
+        shape = self.params["response_shape"]
+        self._fixed_shape = None if shape == "auto" else shape
         self.settings = pm.FitSettings(
             window_widths=float(self.params["window_widths"]),
             cauchy_c=float(self.params["cauchy_c"]),
+            shape=self._fixed_shape or pm.SHAPES[0],
         )
+        self._shape_z: float | None = None
         self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
         self.design = _wire_design(self.sensors, self.params["patch"], self.groups)
         cap = 64
@@ -645,7 +663,7 @@ class Localizer:
         for wc in (0.6 * h, 1.0 * h, 1.6 * h, 2.5 * h):
             th = theta.copy()
             th[:, pm.LW] = th[:, pm.LWY] = np.log(wc)
-            g = pm.lorentz(P, th)[0]
+            g = pm.bump(P, th, self.settings.shape)[0]
             win = pm.window(P, th, self.settings.window_spacings * h, self.settings) * vf
             # Weighted linear least squares for height and floor at this width.
             s0, s1, s2 = win.sum(0), (win * g).sum(0), (win * g * g).sum(0)
@@ -720,7 +738,7 @@ class Localizer:
         for _ in range(3):
             Pe = P0 + d
             G = np.exp(lg)
-            m, J = pm.jacobian(Pe, tau, th, G, rho)
+            m, J = pm.jacobian(Pe, tau, th, G, rho, self.settings.shape)
             res = U - m
             win = pm.window(Pe, th, min_radius, self.settings) * valid
             z = res / (self.settings.cauchy_c * scale)
@@ -762,7 +780,7 @@ class Localizer:
         # Judged without the robust weights (which would hide exactly this touch): the
         # touch's response relative to the models' prediction, over the windows it is in.
         Pe = P0 + d
-        m = pm.model(Pe, tau, th, None, rho)
+        m = pm.model(Pe, tau, th, None, rho, self.settings.shape)
         fl = pm.floor(tau, th)
         bump = m - fl
         win = pm.window(Pe, th, min_radius, self.settings) * valid / (scale * scale)
@@ -825,11 +843,35 @@ class Localizer:
     def solve_all(self, calibrate: bool = True) -> None:
         """Cold-start fit of every sensor, then the touch nuisances (the batch solve).
 
-        ``calibrate``: then size the sigmas as ``_error_bar`` measures (if the
-        ``calibrate_sigma`` parameter allows); the sessions it simulates solve without it.
+        ``calibrate``: then choose the response shape (``response_shape`` "auto") and size
+        the sigmas as ``_error_bar`` measures (if the ``calibrate_sigma`` parameter allows).
+        The sessions it simulates solve without either: they keep the shape their readings
+        were drawn from.
         """
-        K = self._k
         self._sigma_scale = 1.0
+        self._shape_z = None
+        if calibrate:
+            self.settings = replace(self.settings, shape=self._fixed_shape or pm.SHAPES[0])
+        self._solve_once()
+        if calibrate and self._fixed_shape is None and self._k >= 3:
+            shape, self._shape_z = self._favoured_shape()
+            if shape != self.settings.shape:
+                self.settings = replace(self.settings, shape=shape)
+                self._solve_once()
+        # Not for `joint`: there the check narrowed the robot's error bars to 2-sigma
+        # coverage 0.88-0.92 (docs/localizer.md, "Two batch solvers").
+        if (
+            calibrate
+            and self._k >= 3
+            and self.params["calibrate_sigma"]
+            and self.params["solver"] == "alternate"
+        ):
+            self._sigma_scale = sigma_scale(self)
+        self._dirty = False
+
+    def _solve_once(self) -> None:
+        """The batch solve at the current response shape, from a cold start."""
+        K = self._k
         self._settled = False
         self._joint_ratio, self._joint_kept = None, False
         self._lg[:K] = 0.0
@@ -846,31 +888,72 @@ class Localizer:
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)
-        if self._k:
-            self._solve(np.arange(n), np.zeros(n, bool))
-            if self._k >= 3:
-                self._polish(SOLVER_ROUNDS[self.params["solver"]])
-                settle = int(self.params["settle_rounds"])
-                if (
-                    self.params["solver"] == "alternate"
-                    and self.place_sd_mm > FINGER_LIKE_MM
-                    and settle > 0
-                ):
-                    self._polish(settle, SETTLE_RELAX)
-                    self._settled = True
-                    self._try_joint_settle()
-                self._second_peaks()
-                self._settling = self._board_settling()
-                self._refit_after_settling()
-                # Not for `joint`: there the check narrowed the robot's error bars to 2-sigma
-                # coverage 0.88-0.92 (docs/localizer.md, "Two batch solvers").
-                if (
-                    calibrate
-                    and self.params["calibrate_sigma"]
-                    and self.params["solver"] == "alternate"
-                ):
-                    self._sigma_scale = sigma_scale(self)
-        self._dirty = False
+        if not self._k:
+            return
+        self._solve(np.arange(n), np.zeros(n, bool))
+        if self._k < 3:
+            return
+        self._polish(SOLVER_ROUNDS[self.params["solver"]])
+        settle = int(self.params["settle_rounds"])
+        if (
+            self.params["solver"] == "alternate"
+            and self.place_sd_mm > FINGER_LIKE_MM
+            and settle > 0
+        ):
+            self._polish(settle, SETTLE_RELAX)
+            self._settled = True
+            self._try_joint_settle()
+        self._second_peaks()
+        self._settling = self._board_settling()
+        self._refit_after_settling()
+
+    def _favoured_shape(self) -> tuple[str, float | None]:
+        """The response shape the maps favour, and its paired z (None: not tested).
+
+        Every shape gets a short solve from this solve's state: the sensors fitted
+        again, warm-started, then SHAPE_SCREEN_ROUNDS rounds of the touches' nuisances and
+        the sensors (those absorb part of a shape's misfit, so the shape must have its own).
+        The current shape gets the same short solve: the full solve's own residual scale
+        is no reference (on a scattered finger plan a short solve from its end, at its own
+        shape, lowered it by 0.47 in log on average, and the comparison with it chose a
+        shape the scene did not have). A shape wins only if it lowers the converged sensors'
+        robust residual scale across the patch, by a paired test over sensors (log scale
+        ratio, mean over its standard error) below -SHAPE_Z: every sensor of a patch answers
+        the same probe, so they share one shape, where one sensor alone cannot tell the
+        shapes apart from noise. The state is put back afterwards (docs/localizer.md,
+        "Robustness to a wrong response model").
+        """
+        f = self.fit
+        cols = np.flatnonzero(f.has_model() & f.converged)
+        current = self.settings.shape
+        if cols.size < SHAPE_MIN_SENSORS:
+            return current, None
+        kept = self._touch_and_fit_state()
+        scales = {}
+        for shape in pm.SHAPES:
+            # The touches' gains and offsets and the shared footprint absorb part of a
+            # wrong shape's misfit: each shape gets its own, as a short solve would.
+            self.settings = replace(self.settings, shape=shape)
+            self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
+            self._polish(SHAPE_SCREEN_ROUNDS)
+            scales[shape] = np.log(np.maximum(f.scale[cols], 1e-300))
+            self._set_touch_and_fit_state(kept)
+        best, best_z, best_gain = current, None, 0.0
+        for shape, scale in scales.items():
+            if shape == current:
+                continue
+            d = scale - scales[current]
+            d = d[np.isfinite(d)]
+            sd = float(np.std(d, ddof=1)) if d.size >= SHAPE_MIN_SENSORS else 0.0
+            if sd <= 0.0:
+                continue
+            z = float(np.mean(d)) / (sd / math.sqrt(d.size))
+            if best_z is None or z < best_z:
+                best_z = z
+            if z < -SHAPE_Z and float(np.mean(d)) < best_gain:
+                best, best_gain = shape, float(np.mean(d))
+        self.settings = replace(self.settings, shape=current)
+        return best, best_z
 
     def _board_settling(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The board's settling from the fits as they stand (_settling.py); None where the
@@ -1115,7 +1198,10 @@ class Localizer:
             recent = _nanmedian_cols(self._V[max(0, k - RECENT_TOUCHES) : k] * self._sign)
             ridge = self._ridge_width(len(self.sensors), f.theta)
             zero = np.zeros((1, len(self.sensors)))
-            bump = pm.model(p[None], zero, f.theta, None, ridge)[0] - pm.floor(zero, f.theta)[0]
+            shape = self.settings.shape
+            bump = (
+                pm.model(p[None], zero, f.theta, None, ridge, shape)[0] - pm.floor(zero, f.theta)[0]
+            )
             rise = (v_new - recent) / f.amp - bump
             new_top |= (
                 np.isfinite(rise)
@@ -1140,9 +1226,10 @@ class Localizer:
         th = f.theta[cand]
         rho = self._ridge_width(cand.size, th)
         zero = np.zeros((1, cand.size))
-        m0 = pm.model(self._P[k : k + 1], zero, th, None, rho)[0]
+        shape = self.settings.shape
+        m0 = pm.model(self._P[k : k + 1], zero, th, None, rho, shape)[0]
         m1 = pm.model(
-            self._P[k : k + 1] + self._dxy[k], zero, th, np.exp(self._lg[k : k + 1]), rho
+            self._P[k : k + 1] + self._dxy[k], zero, th, np.exp(self._lg[k : k + 1]), rho, shape
         )[0]
         pick = np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)
         redo = cand[pick]
