@@ -83,25 +83,28 @@ def _per_touch(G: np.ndarray) -> np.ndarray:
     return G[:, None] if G.ndim == 1 else G
 
 
-def profile(rx: np.ndarray, ry: np.ndarray, shape: str = "lorentzian"):
-    """The bump's height at squared normalized distance ``q = rx + ry`` (1 at the top, 1/2
-    at q = 1) and its fall with q, -d phi / d q."""
+def profile(rx: np.ndarray, ry: np.ndarray, shape: str = "lorentzian") -> np.ndarray:
+    """The bump's height at squared normalized distance ``q = rx + ry``: 1 at the top, 1/2
+    at q = 1."""
     if shape == "lorentzian":
-        g = 1.0 / (1.0 + rx + ry)
-        return g, g * g
-    q = rx + ry
+        return 1.0 / (1.0 + rx + ry)
     if shape == "gaussian":
-        g = np.exp(-_LN2 * q)
-        return g, _LN2 * g
-    r = np.sqrt(q + _TIP * _TIP)
-    g = np.exp(-_LN2 * (r - _TIP) / _TIP_NORM)
-    return g, (0.5 * _LN2 / _TIP_NORM) * g / r
+        return np.exp(-_LN2 * (rx + ry))
+    return np.exp(-_LN2 * (np.sqrt(rx + ry + _TIP * _TIP) - _TIP) / _TIP_NORM)
+
+
+def fall(g: np.ndarray, rx: np.ndarray, ry: np.ndarray, shape: str) -> np.ndarray:
+    """How fast the bump ``g = profile(rx, ry, shape)`` falls with q: -d phi / d q."""
+    if shape == "lorentzian":
+        return g * g
+    if shape == "gaussian":
+        return _LN2 * g
+    return (0.5 * _LN2 / _TIP_NORM) * g / np.sqrt(rx + ry + _TIP * _TIP)
 
 
 def bump(P: np.ndarray, theta: np.ndarray, shape: str = "lorentzian"):
-    """Shape g, its fall -dg/dq, the x and y parts of the squared normalized distance q,
-    inverse widths^2, and the signed distances from the peak (which the Jacobian and the
-    ridges reuse).
+    """Shape g, the x and y parts of the squared normalized distance, inverse widths^2,
+    and the signed distances from the peak (which the Jacobian and the ridges reuse).
 
     Shapes broadcast: theta (S,P) against probes (K,2) gives (K,S); theta (R,M,P) (sensors
     gathered per touch) against probes (R,2) gives (R,M).
@@ -113,8 +116,7 @@ def bump(P: np.ndarray, theta: np.ndarray, shape: str = "lorentzian"):
     dy = Y - theta[..., SY]
     rx = dx * dx * iwx
     ry = dy * dy * iwy
-    g, fall = profile(rx, ry, shape)
-    return g, fall, (rx, ry), (iwx, iwy), (dx, dy)
+    return profile(rx, ry, shape), (rx, ry), (iwx, iwy), (dx, dy)
 
 
 def half_width(theta: np.ndarray) -> np.ndarray:
@@ -151,7 +153,7 @@ def ridges(P, theta, rho, d=None):
 
 def model(P, tau, theta, G=None, rho=None, shape="lorentzian"):
     """Model values (K,S); ``G`` (K,) is each touch's relative pressing gain (default 1)."""
-    g, _, _, _, dxy = bump(P, theta, shape)
+    g, _, _, dxy = bump(P, theta, shape)
     if G is not None:
         g = g * _per_touch(G)
     m = floor(tau, theta) + theta[..., AMP] * g
@@ -173,11 +175,11 @@ def floor(tau, theta):
 
 def jacobian(P, tau, theta, G=None, rho=None, shape="lorentzian") -> tuple[np.ndarray, np.ndarray]:
     """Model (K,S) and its Jacobian (K,S,N_PARAMS)."""
-    g, fall, (rx, ry), (iwx, iwy), dxy = bump(P, theta, shape)
+    g, (rx, ry), (iwx, iwy), dxy = bump(P, theta, shape)
     a = theta[..., AMP]
     # The Lorentzian's product in its own order: the same floating-point result as before
     # the other shapes came, so the benchmarks of it still hold to the last bit.
-    k2 = 2.0 * a * g * g if shape == "lorentzian" else 2.0 * a * fall
+    k2 = 2.0 * a * g * g if shape == "lorentzian" else 2.0 * a * fall(g, rx, ry, shape)
     if G is not None:
         k2 = k2 * _per_touch(G)
         g = g * _per_touch(G)
