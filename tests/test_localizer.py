@@ -147,6 +147,33 @@ def test_the_patch_chooses_its_response_shape(shape, patch_a):
         assert coverage > float(np.mean(inside["lorentzian"]))
 
 
+@pytest.mark.parametrize("shape", ["lorentzian", "gaussian"])
+def test_a_larger_patch_screens_shapes_on_a_block_and_leaves_no_trace(shape, patch_b, monkeypatch):
+    """A patch with more sensors than SHAPE_SCREEN_SENSORS screens the shapes on that many
+    around its middle (here Patch B's 30 stand in for a board, with a block of 16). The
+    screen's rounds re-fit the block alone, it still finds the shape, and it leaves nothing
+    behind: the result is exactly the solve with that shape given."""
+    monkeypatch.setattr(peakfit, "SHAPE_SCREEN_SENSORS", 16)
+    refitted = []
+    polish = peakfit.Localizer._polish
+
+    def spy(self, rounds, *args, cols=None, **kwargs):
+        refitted.append(len(self.sensors) if cols is None else cols.size)
+        return polish(self, rounds, *args, cols=cols, **kwargs)
+
+    monkeypatch.setattr(peakfit.Localizer, "_polish", spy)
+    logs = session(patch_b, "robot", 300, shape=shape).point_logs()
+    auto = localize(logs, patch=patch_b)
+    assert auto.params["response_shape"] == shape
+    assert (auto.params["response_shape_z"] < -peakfit.SHAPE_Z) == (shape != "lorentzian")
+    assert refitted.count(16) == len(peakfit.pm.SHAPES)  # one short solve per shape
+    assert set(refitted) == {16, 30}  # the solves themselves re-fit every sensor
+    given = localize(logs, patch=patch_b, response_shape=shape)
+    np.testing.assert_array_equal(auto.xy(), given.xy())
+    np.testing.assert_array_equal([p.sigma_mm for p in auto], [p.sigma_mm for p in given])
+    assert [p.status for p in auto] == [p.status for p in given]
+
+
 def test_a_live_session_that_changes_shape_still_ends_at_the_batch_solve(patch_b):
     """The live view fits the shape its last re-solve chose; the result after the last
     update is the batch solve's, shape included, exactly."""

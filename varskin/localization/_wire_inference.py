@@ -289,20 +289,20 @@ def _slanted_rows(
     prior's own model of a wire); the rows are clear if every sensor lies within JOIN_SDS
     of its own row's line and at least CUT_SDS from every other row's, at its x.
     """
+    # Weighted least squares for every row at once: the full board tries many row counts,
+    # each a few times, inside a live update.
     w = 1.0 / sd**2
     at = float(np.average(x, weights=w))
-    centre = np.empty(k)
-    slope = np.zeros(k)
-    csd = np.empty(k)
-    for r in range(k):
-        m = lab == r
-        wm, xm, ym = w[m], x[m], y[m]
-        x0 = float(np.average(xm, weights=wm))
-        sxx = float((wm * (xm - x0) ** 2).sum())
-        if m.sum() >= 3 and sxx > 0:
-            slope[r] = float((wm * (xm - x0) * (ym - np.average(ym, weights=wm))).sum()) / sxx
-        centre[r] = float(np.average(ym - slope[r] * (xm - x0), weights=wm)) + slope[r] * (at - x0)
-        csd[r] = 1.0 / np.sqrt(wm.sum())
+    wsum = np.bincount(lab, weights=w, minlength=k)
+    x0 = np.bincount(lab, weights=w * x, minlength=k) / wsum
+    y0 = np.bincount(lab, weights=w * y, minlength=k) / wsum
+    dx = x - x0[lab]
+    sxx = np.bincount(lab, weights=w * dx**2, minlength=k)
+    sxy = np.bincount(lab, weights=w * dx * (y - y0[lab]), minlength=k)
+    sloped = (np.bincount(lab, minlength=k) >= 3) & (sxx > 0)
+    slope = np.where(sloped, sxy / np.where(sloped, sxx, 1.0), 0.0)
+    centre = y0 + slope * (at - x0)
+    csd = 1.0 / np.sqrt(wsum)
     family = _Family(centre, csd, np.ones(k, bool), slope, at)
     z = np.abs(family.line(x) - y[None, :]) / sd[None, :]  # (k, n)
     own = z[lab, np.arange(lab.size)]
