@@ -559,6 +559,25 @@ def test_layout_prior_ignores_a_sensor_without_a_coordinate():
     assert np.all(np.abs(out[:9] - coord[:9]) <= 0.2)
 
 
+def test_with_few_wires_the_design_map_is_an_offset_from_the_design():
+    """Under 5 wires the map from design to fitted coordinates is an offset alone: a wire's
+    design prior is its design plus the offset its wire-mates show. Three RX wires designed
+    at 7, 13 and 22 mm, built 1 mm off: the two outer wires' precise crossings say so, and
+    the middle wire's one loose crossing (at 14.6 mm, sd 1 mm) is pulled to about 14 mm.
+    (Before session 38 the map regressed the levels on a constant: the prior was the outer
+    wires' mean, 15.5 mm, and as wide as the wires' spread.)"""
+    from varskin.localization._layout_prior import shrink_to_wires
+
+    groups = np.array([0] * 5 + [1] + [2] * 5)
+    coord = np.array([8.0] * 5 + [14.6] + [23.0] * 5)
+    var = np.array([0.01] * 5 + [1.0] + [0.01] * 5)
+    design = np.array([7.0] * 5 + [13.0] + [22.0] * 5)
+    usable = np.ones(11, bool)
+    out, out_var = shrink_to_wires(coord, var, np.arange(11.0), groups, usable, 0.25, None, design)
+    assert abs(out[5] - 14.0) < 0.1, out[5]
+    assert out_var[5] < 0.2, out_var[5]  # the design and the offset pin it, not its own 1 mm
+
+
 def test_live_update_restarts_a_sensor_whose_peak_turns_up_away_from_its_fit(patch_b):
     """Patch B, finger, seed 7: S15's offset drifts down by ~100 counts, so when the last
     re-solve (at 56 logs) ran, its map's top lay at the session's start and its fit put the

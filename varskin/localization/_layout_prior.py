@@ -200,6 +200,10 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     slanted = (count >= 5) & (span > 0)
     dz_mean = dz.sum(axis=1) / np.maximum(count, 1)
     x1 = np.where(mask & slanted[:, None], dz - dz_mean[:, None], 0.0)
+    # With an offset alone the wires' displacements from the design (level - design) share
+    # one level; the affine map regresses the levels on the design instead.
+    by_offset = np.where(mask & ~slanted[:, None], dz, 0.0)
+    lv = lv - by_offset
     s2 = _scatter_rows(lv, lvar, x1, mask, count, np.where(slanted, 2, 1), floor_mm, 6)
     # Each wire's prior comes from the map fitted to the other wires (its own crossings
     # must not vouch for themselves), plus that map's own uncertainty at the wire: the
@@ -212,7 +216,7 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     r1 = (w * x1 * lv).sum(axis=1)[:, None] - w * x1 * lv
     i00, i01, i11 = _inv_sym2(a00, a01, a11)
     at = order[mask]
-    mean[at] = ((i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1))[mask]
+    mean[at] = ((i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1) + by_offset)[mask]
     spread[at] = (s2[:, None] + i00 + 2.0 * i01 * x1 + i11 * x1 * x1)[mask]
     return mean, spread
 
