@@ -13,6 +13,7 @@ from pathlib import Path
 
 from varskin import localization as registry
 from varskin.errors import InputError
+from varskin.localization._peak_model import SHAPES
 from varskin.patch import resolve_patch
 
 
@@ -88,7 +89,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--response-shape",
         dest="response_shape",
-        choices=["auto", "lorentzian", "gaussian", "exponential"],
+        choices=["auto", *SHAPES],
         help="peakfit: the profile of a sensor's bump with the probe's distance, all at half "
         "height at the fitted half width; auto keeps the Lorentzian unless the whole patch's "
         "fits favour another by a paired test over sensors (docs/localizer.md); default auto",
