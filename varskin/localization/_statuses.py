@@ -52,6 +52,8 @@ DRIFT_FRACTION = 0.5
 # flagged 5 and 0.2 flagged 24. As committed it flags 3 of Patch B's 2,996 there (fitted
 # peaks 0.58, 1.75 and 2.78 mm off; docs/benchmarks.md, "Settling the fit did not follow").
 UNFOLLOWED_FRACTION = 0.35
+# ... or taking that settling out of its readings moves its fit too far for its error bar
+# (peakfit.Localizer._settling_moved, judged in each batch solve).
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
@@ -254,9 +256,14 @@ def drift_measures(loc: Localizer, inside: np.ndarray) -> tuple[np.ndarray, np.n
 
 def drifting_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
     """(N,) bool: the sensor's offset settled during its own touches faster than its fit
-    followed, by either of ``drift_measures`` (DRIFT_FRACTION, UNFOLLOWED_FRACTION)."""
+    followed, by either of ``drift_measures`` (DRIFT_FRACTION, UNFOLLOWED_FRACTION), or the
+    last batch solve found that settling moves its fit too far (``_settling_moved``)."""
     own, missed = drift_measures(loc, inside)
-    return (np.isfinite(own) & (own > DRIFT_FRACTION)) | (missed > UNFOLLOWED_FRACTION)
+    return (
+        (np.isfinite(own) & (own > DRIFT_FRACTION))
+        | (missed > UNFOLLOWED_FRACTION)
+        | loc._moved_by_settling
+    )
 
 
 def window_members(
