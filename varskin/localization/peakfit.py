@@ -934,8 +934,12 @@ class Localizer:
             self._try_joint_settle()
         self._second_peaks()
         self._settling = self._board_settling()
-        self._moved_by_settling = self._settling_moved()
-        self._refit_after_settling()
+        # Both judge the fits as they stand here (the settling check puts its re-fit back).
+        inside = window_members(
+            self, self.fit.theta[:, :2], pm.half_width(self.fit.theta), self.spacing()
+        )
+        self._moved_by_settling = self._settling_moved(inside)
+        self._refit_after_settling(inside)
 
     def _favoured_shape(self) -> tuple[str, float | None]:
         """The response shape the maps favour, and its paired z (None: not tested).
@@ -1018,10 +1022,11 @@ class Localizer:
         P = self._P[:K] + self._dxy[:K]
         return board_settling(V, P, self._tau(), f.theta[:, :2], w, usable, noise)
 
-    def _settling_moved(self) -> np.ndarray:
+    def _settling_moved(self, inside: np.ndarray) -> np.ndarray:
         """(N,) bool: the sensors whose fit, warm re-fitted with the board's settling (as
         ``_board_settling`` read it) taken out of their readings, moves by more than
-        SETTLING_MOVE_SIGMAS of its own first-order sigma and SETTLING_MOVE_MM.
+        SETTLING_MOVE_SIGMAS of its own first-order sigma and SETTLING_MOVE_MM; ``inside``
+        the touches in each fit's window (``window_members``).
 
         The settling the fit did not follow is judged in peak heights (``unfollowed``), and
         a small fraction can still cost millimetres: on a full board's robot grid (6 x 10
@@ -1037,7 +1042,6 @@ class Localizer:
             return out
         K, f = self._k, self.fit
         course, level = self._settling
-        inside = window_members(self, f.theta[:, :2], pm.half_width(f.theta), self.spacing())
         with np.errstate(all="ignore"):
             _, unfollowed = drift_measures(self, inside)
         cols = np.flatnonzero(f.has_model() & (unfollowed > SETTLING_CHECK_FRACTION))
@@ -1118,8 +1122,9 @@ class Localizer:
         """Put back the fits _refit replaced, for the sensors ``cols[mask]``."""
         self.fit.put({name: v[mask] for name, v in kept.items()}, cols[mask])
 
-    def _refit_after_settling(self) -> None:
-        """Re-fit each `drifting` sensor from the touches since the probe came back to it.
+    def _refit_after_settling(self, inside: np.ndarray) -> None:
+        """Re-fit each `drifting` sensor from the touches since the probe came back to it
+        (``inside``: the touches in each fit's window, ``window_members``).
 
         A sensor probed first while its offset still settled is `drifting` however often it
         is probed again: its first touches stay in its window, and the slow floor model
@@ -1128,9 +1133,6 @@ class Localizer:
         judged on the touches it used); otherwise the sensor keeps its fit and its status.
         """
         f = self.fit
-        h = self.spacing()
-        w = pm.half_width(f.theta)
-        inside = window_members(self, f.theta[:, :2], w, h)
         with np.errstate(all="ignore"):
             drifting = drifting_during_own_touches(self, inside)
         cols = np.flatnonzero(f.fitted & drifting)
