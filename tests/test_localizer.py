@@ -578,6 +578,30 @@ def test_with_few_wires_the_design_map_is_an_offset_from_the_design():
     assert out_var[5] < 0.2, out_var[5]  # the design and the offset pin it, not its own 1 mm
 
 
+def test_with_five_or_more_wires_the_design_map_follows_a_stretched_patch(patch_b):
+    """A silicone patch may lie stretched on the bench, so from 5 wires on the map from
+    design to fitted coordinates has a scale term. Patch B's ten TX wires, laid 2 % long
+    about the patch's centre: nine measured to 0.1 mm, the first by one loose crossing
+    (sd 1 mm) 1 mm off. The map puts its prior at the stretched position, 1.4 mm from its
+    design; an offset alone would put it at 6.1 mm, 2 mm from the truth (4.1 mm). Session
+    40 measured the scale term against an offset alone on default and stretched scenes
+    (docs/benchmarks.md, "A stretched patch")."""
+    from varskin.localization._layout_prior import shrink_to_wires
+
+    c = patch_b.length_mm / 2
+    design_x = np.array(patch_b.tx_x_mm)
+    laid = c + (design_x - c) * 1.02
+    groups = np.array([0] + [g for g in range(1, 10) for _ in range(3)])
+    jitter = np.tile([-0.05, 0.0, 0.05], 9)
+    coord = np.concatenate([[laid[0] + 1.0], laid[groups[1:]] + jitter])
+    var = np.array([1.0] + [0.01] * 27)
+    along = np.concatenate([[8.0], np.tile([3.0, 11.0, 19.0], 9)])
+    usable = np.ones(28, bool)
+    out, out_var = shrink_to_wires(coord, var, along, groups, usable, 0.25, None, design_x[groups])
+    assert abs(out[0] - laid[0]) < 0.3, (out[0], laid[0])
+    assert out_var[0] < 0.25, out_var[0]
+
+
 def test_live_update_restarts_a_sensor_whose_peak_turns_up_away_from_its_fit(patch_b):
     """Patch B, finger, seed 7: S15's offset drifts down by ~100 counts, so when the last
     re-solve (at 56 logs) ran, its map's top lay at the session's start and its fit put the

@@ -3,7 +3,7 @@ import pytest
 
 from varskin.errors import ConfigError
 from varskin.patch import load_patch, patch_from_dict
-from varskin.scene import ProbeModel, Scene
+from varskin.scene import ProbeModel, Scene, SceneParams
 
 
 def test_published_patch_b_layout(patch_b):
@@ -66,6 +66,26 @@ def test_scene_response_peaks_at_true_position(patch_b):
         assert at > off > 0
     assert not np.allclose(scene.true_xy, patch_b.design_xy)  # layout is hidden by default
     assert scene.response(10, 10, 0.0, probe).sum() == 0.0  # no force, no signal
+
+
+def test_a_stretched_scene_scales_the_layout_about_the_patch_centre(patch_b):
+    """``stretch`` lays the patch that much longer and wider about its centre; the hidden
+    wires' displacements come on top, from the same random draws as unstretched (a bent
+    wire's slope then spans a stretched wire: a few micrometres more here). A crossing is
+    still kept 0.5 mm inside the patch's edge (S28 and S29 of this seed)."""
+    centre = np.array([patch_b.length_mm, patch_b.width_mm]) / 2
+    flat = Scene.create(patch_b, seed=3, params=SceneParams(hidden_layout=False, stretch=0.02))
+    np.testing.assert_allclose(flat.true_xy, centre + (patch_b.design_xy - centre) * 1.02)
+    plain = Scene.create(patch_b, seed=3)
+    stretched = Scene.create(patch_b, seed=3, params=SceneParams(stretch=0.02))
+    edge = stretched.true_xy[:, 0] >= patch_b.length_mm - 0.5
+    assert edge.sum() == 2
+    np.testing.assert_allclose(
+        (stretched.true_xy - plain.true_xy)[~edge],
+        ((patch_b.design_xy - centre) * 0.02)[~edge],
+        atol=0.005,
+    )
+    np.testing.assert_array_equal(stretched.peak, plain.peak)
 
 
 def test_patch_defaults_name_sensors_y_fastest():
