@@ -88,6 +88,20 @@ def test_a_stretched_scene_scales_the_layout_about_the_patch_centre(patch_b):
     np.testing.assert_array_equal(stretched.peak, plain.peak)
 
 
+def test_a_turned_scene_lies_rotated_about_the_patch_centre(patch_b):
+    """``rotation_deg``: the registration's residual rotation turns the layout about the
+    patch's centre in the probes' frame (anticlockwise), keeping every distance."""
+    centre = np.array([patch_b.length_mm, patch_b.width_mm]) / 2
+    turned = Scene.create(patch_b, params=SceneParams(hidden_layout=False, rotation_deg=0.5))
+    before = patch_b.design_xy - centre
+    after = turned.true_xy - centre
+    np.testing.assert_allclose(np.hypot(*after.T), np.hypot(*before.T))
+    angle = np.degrees(
+        np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])
+    )
+    np.testing.assert_allclose((angle + 180.0) % 360.0 - 180.0, 0.5, atol=1e-9)
+
+
 def test_patch_defaults_name_sensors_y_fastest():
     p = patch_from_dict({"name": "t", "size_mm": [10, 5], "tx_x_mm": [1, 2], "rx_y_mm": [1, 3]})
     assert [(s.name, s.tx, s.rx) for s in p.sensors] == [

@@ -74,6 +74,9 @@ class SceneParams:
     # A silicone patch laid on the bench may lie stretched (> 0) or shrunk (< 0) by this
     # fraction about its centre, in both axes; the probes' frame is not (rigid registration).
     stretch: float = 0.0
+    # The registration's residual rotation: the layout lies turned by this angle (degrees,
+    # anticlockwise) about the patch's centre in the probes' frame.
+    rotation_deg: float = 0.0
     force_exponent: float = 0.5  # response ~ (F / F_nominal) ** exponent, saturating
     # Response versus distance, all with half maximum at d = w: "lorentzian" 1/(1+(d/w)^2)
     # (fitted to the public recordings), "gaussian" 2^-(d/w)^2 and "exponential" 2^-(d/w)
@@ -115,9 +118,11 @@ class Scene:
         rng = np.random.default_rng(seed)
         n = len(patch.sensors)
         design = patch.design_xy
-        if params.stretch:
+        if params.stretch or params.rotation_deg:
             centre = np.array([patch.length_mm, patch.width_mm]) / 2
-            design = centre + (design - centre) * (1.0 + params.stretch)
+            a = np.radians(params.rotation_deg)
+            turn = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+            design = centre + (design - centre) @ turn.T * (1.0 + params.stretch)
         if params.hidden_layout:
             tx = np.array([s.tx for s in patch.sensors])
             rx = np.array([s.rx for s in patch.sensors])
