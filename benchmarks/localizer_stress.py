@@ -11,8 +11,8 @@ status is an honest answer; a confident wrong position is not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
 [--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]
-[--joint-settle-rounds N]`` (94 s on
-the 2-core VM with 2 jobs since finger solves settle; docs/bench/stress.md). Peakfit runs
+[--joint-settle-rounds N]`` (3m25s on
+the 2-core VM with 2 jobs in session 40, beside other work; docs/bench/stress.md). Peakfit runs
 with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs it,
 unless ``--prior`` says otherwise; the paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the

@@ -505,6 +505,26 @@ def test_layout_prior_pins_edge_wires_and_weakens_when_the_patch_is_off_design(
     assert 0.90 <= float(np.mean(inside)) <= 1.0
 
 
+def test_a_patch_far_off_its_design_takes_the_joint_rounds(patch_b):
+    """With the patch given a settled finger solve skips the joint rounds: the design prior
+    pins the edge wires they would otherwise settle. A patch whose wires lie 1.5 mm (sd) off
+    their design is not pinned, so its solve takes them as it would without the patch
+    (peakfit.DESIGN_LOOSE_MM). Seed 501 without them: 0.85 mm RMS, S30 2.3 mm off; with
+    them 0.64 mm and every sensor within 2 mm. The same seed on a patch built to its
+    design (0.6 mm) takes none."""
+    off = session(patch_b, "finger", 501, wire_offset_sd_mm=1.5, wire_bend_sd_mm=0.75)
+    logs = off.point_logs()
+    pred = localize(logs, patch=patch_b)
+    assert pred.params["joint_settle_kept"]
+    without = errors(localize(logs, patch=patch_b, joint_settle_rounds=0), off.truth)
+    with_rounds = errors(pred, off.truth)
+    assert np.nanmax(without) > 2.0
+    assert np.nanmax(with_rounds) < 2.0
+    assert rms(with_rounds) < 0.85 * rms(without)
+    near = session(patch_b, "finger", 501)
+    assert "joint_settle_ratio" not in localize(near.point_logs(), patch=patch_b).params
+
+
 @pytest.mark.parametrize("use_patch", [False, True])
 def test_last_column_at_the_probes_edge_is_located_within_two_sigma(patch_b, use_patch):
     """Patch B's last TX wire lies at the last probe column (x = 148.59 mm; on this seed

@@ -171,8 +171,62 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     """
     mean = np.full(in_group.shape[0], np.nan)
     spread = mean.copy()
-    if design is None:
+    fitted = _design_map(coord, var, in_group, member, design, family, floor_mm)
+    if fitted is None:
         return mean, spread
+    order, mask, lv, lvar, x1, by_offset, slanted, s2 = fitted
+    # Each wire's prior comes from the map fitted to the other wires (its own crossings
+    # must not vouch for themselves), plus that map's own uncertainty at the wire: the
+    # normal equations of all wires minus wire j's own term, for every j at once.
+    w = np.where(mask, 1.0 / (lvar + s2[:, None]), 0.0)
+    a00 = w.sum(axis=1)[:, None] - w
+    a01 = (w * x1).sum(axis=1)[:, None] - w * x1
+    a11 = (w * x1 * x1).sum(axis=1)[:, None] - w * x1 * x1 + np.where(slanted, 0.0, 1.0)[:, None]
+    r0 = (w * lv).sum(axis=1)[:, None] - w * lv
+    r1 = (w * x1 * lv).sum(axis=1)[:, None] - w * x1 * lv
+    i00, i01, i11 = _inv_sym2(a00, a01, a11)
+    at = order[mask]
+    mean[at] = ((i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1) + by_offset)[mask]
+    spread[at] = (s2[:, None] + i00 + 2.0 * i01 * x1 + i11 * x1 * x1)[mask]
+    return mean, spread
+
+
+def design_scatter_mm(
+    xy: np.ndarray,
+    var: np.ndarray,
+    tx: np.ndarray,
+    rx: np.ndarray,
+    usable: np.ndarray,
+    design_xy: tuple[np.ndarray, np.ndarray],
+    min_scatter_mm: float,
+) -> float:
+    """How far the wires lie off the design map, in mm (sd; the larger axis): the scatter
+    the design prior is weighed with (>= ``min_scatter_mm``); NaN if no axis has one.
+    Arguments as ``shrink_to_layout``'s."""
+    n = len(var)
+    groups = both_axes(tx, rx)
+    gids = np.unique(groups[groups >= 0])
+    in_group = groups[None, :] == gids[:, None]
+    member = in_group & np.concatenate([usable, usable])[None, :]
+    fitted = _design_map(
+        np.concatenate([xy[:, 0], xy[:, 1]]),
+        np.concatenate([var, var]),
+        in_group,
+        member,
+        np.concatenate(design_xy),
+        np.repeat([0, 1], n),
+        min_scatter_mm,
+    )
+    return float("nan") if fitted is None else float(np.sqrt(fitted[-1].max()))
+
+
+def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
+    """Every family's wires against their design, padded to (F, W): the wires' order and
+    mask, levels, the levels' variances, the centred design where the map has a scale,
+    the design where it is an offset alone, which families have a scale, and (F,) the
+    wires' scatter about the map. None where no family has >= 3 measured wires."""
+    if design is None:
+        return None
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
     keep = member.any(axis=1) & designed
     first = in_group.argmax(axis=1)  # each wire's first sensor: its design and family
@@ -181,13 +235,12 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     rows = (wire_family[None, :] == fams[:, None]) & keep[None, :]  # (F, G)
     rows &= (rows.sum(axis=1) >= 3)[:, None]
     if not rows.any():
-        return mean, spread
+        return None
     wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)
     wsum = np.maximum(wm.sum(axis=1), 1e-300)  # wires without members are not kept
     # Sensors outside a wire may have no coordinate at all (NaN): mask, never multiply by 0.
     level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wsum
     level_var = 1.0 / wsum
-    # Every family's wires at once, padded to (F, W).
     W = int(rows.sum(axis=1).max())
     order = np.argsort(~rows, axis=1, kind="stable")[:, :W]
     mask = np.take_along_axis(rows, order, axis=1)
@@ -205,20 +258,7 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     by_offset = np.where(mask & ~slanted[:, None], dz, 0.0)
     lv = lv - by_offset
     s2 = _scatter_rows(lv, lvar, x1, mask, count, np.where(slanted, 2, 1), floor_mm, 6)
-    # Each wire's prior comes from the map fitted to the other wires (its own crossings
-    # must not vouch for themselves), plus that map's own uncertainty at the wire: the
-    # normal equations of all wires minus wire j's own term, for every j at once.
-    w = np.where(mask, 1.0 / (lvar + s2[:, None]), 0.0)
-    a00 = w.sum(axis=1)[:, None] - w
-    a01 = (w * x1).sum(axis=1)[:, None] - w * x1
-    a11 = (w * x1 * x1).sum(axis=1)[:, None] - w * x1 * x1 + np.where(slanted, 0.0, 1.0)[:, None]
-    r0 = (w * lv).sum(axis=1)[:, None] - w * lv
-    r1 = (w * x1 * lv).sum(axis=1)[:, None] - w * x1 * lv
-    i00, i01, i11 = _inv_sym2(a00, a01, a11)
-    at = order[mask]
-    mean[at] = ((i00 * r0 + i01 * r1) + x1 * (i01 * r0 + i11 * r1) + by_offset)[mask]
-    spread[at] = (s2[:, None] + i00 + 2.0 * i01 * x1 + i11 * x1 * x1)[mask]
-    return mean, spread
+    return order, mask, lv, lvar, x1, by_offset, slanted, s2
 
 
 def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: int = 4):

@@ -23,6 +23,7 @@ from varskin.localization import _peak_model as pm
 from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
+from varskin.localization._layout_prior import design_scatter_mm
 from varskin.localization._settling import board_settling
 from varskin.localization._statuses import (
     DEAD,
@@ -74,6 +75,11 @@ FINGER_LIKE_MM = 0.4
 # sensor_whose_peak_turns_up_away_from_its_fit: 2.59 sigma) and cost the design prior's
 # pull on off-design patches (docs/benchmarks.md, "Joint rounds after settling").
 JOINT_SETTLE_ROUNDS = 8
+# ... unless the patch lies so far off its design that the design prior no longer pins
+# those sensors: its wires scatter about the design map by more than DESIGN_LOOSE_MM (the
+# simulator's default displacement is 0.6 mm sd). Then the solve takes the rounds as it
+# would without the patch (docs/benchmarks.md, "A patch far off its design").
+DESIGN_LOOSE_MM = 1.0
 JOINT_SETTLE_GUARD = 1.15
 JOINT_STEPS = 2
 # The response shape (``response_shape`` "auto"): another of pm.SHAPES replaces the
@@ -1069,7 +1075,7 @@ class Localizer:
         rounds = self.params["joint_settle_rounds"]
         if rounds is None:
             design_prior = self.design is not None and self.params["layout_prior"]
-            rounds = 0 if design_prior else JOINT_SETTLE_ROUNDS
+            rounds = 0 if design_prior and not self._off_design() else JOINT_SETTLE_ROUNDS
         if rounds <= 0:
             return
         K = self._k
@@ -1085,6 +1091,17 @@ class Localizer:
         self._joint_kept = self._joint_ratio <= JOINT_SETTLE_GUARD
         if not self._joint_kept:
             self._set_touch_and_fit_state(kept)
+
+    def _off_design(self) -> bool:
+        """Whether the fits' wires scatter about the patch's design map by more than
+        DESIGN_LOOSE_MM: a patch built (or laid) that far off its design."""
+        f = self.fit
+        var = np.diagonal(f.cov_xy, axis1=1, axis2=2).mean(axis=1)
+        usable = f.has_model() & f.converged & (f.n_eff >= 6.0) & np.isfinite(var)
+        tx, rx = self.groups
+        floor = float(self.params["wire_scatter_mm"])
+        scatter = design_scatter_mm(f.theta[:, :2], var, tx, rx, usable, self.design, floor)
+        return scatter > DESIGN_LOOSE_MM
 
     def _touch_and_fit_state(self) -> dict:
         """What a polish changes, to put back with _set_touch_and_fit_state."""
