@@ -6,13 +6,14 @@ and seeds that tests and tuning never saw. This one moves one knob at a time wel
 those defaults (noise, peak, drift, wire displacement, a stretched or turned patch,
 footprint spread, response shape, short touches, grid density, scattered touches, the
 probe's placement) and asks two questions per variant: how much better than the paper's
-method is peakfit, and is it ever *silently* wrong, i.e. ``ok`` with an error above both 2 mm and 3 sigma_mm. A flagged
-status is an honest answer; a confident wrong position is not.
+method is peakfit, and is it ever *silently* wrong, i.e. ``ok`` with an error above both
+2 mm and 3 sigma_mm. A flagged status is an honest answer; a confident wrong position is
+not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
 [--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]
-[--joint-settle-rounds N]`` (3m25s on
-the 2-core VM with 2 jobs in session 40, beside other work; docs/bench/stress.md). Peakfit runs
+[--joint-settle-rounds N]`` (3m25s on the 2-core VM with 2 jobs in session 40;
+docs/bench/stress.md). Peakfit runs
 with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs it,
 unless ``--prior`` says otherwise; the paper method at ppcm 16.
 Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
