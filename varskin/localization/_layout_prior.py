@@ -50,11 +50,9 @@ def shrink_to_wires(
     out_var = var.copy()
     # All wires at once, padded to (G, M): a live update calls this twice per touch, and a
     # Python loop of tiny numpy calls per wire cost more than the arithmetic.
-    gids = np.unique(groups[groups >= 0])
-    if gids.size == 0 or not (usable & (groups >= 0)).any():
+    if not (usable & (groups >= 0)).any():
         return out, out_var
-    in_group = groups[None, :] == gids[:, None]  # (G, N)
-    member = in_group & usable[None, :]
+    in_group, member = _wire_members(groups, usable)
     fam = np.zeros(coord.size, int) if family is None else np.asarray(family)
     mu, s2 = _design_prior(coord, var, in_group, member, design, fam, min_scatter_mm)
     has_prior = np.isfinite(mu)
@@ -136,19 +134,36 @@ def shrink_to_layout(
     instead of one per axis: a live update runs this every touch.
     """
     n = len(var)
-    groups = both_axes(tx, rx)
+    coord, var2, usable2, design, family = _stack_axes(xy, var, usable, design_xy)
     out, out_var = shrink_to_wires(
-        np.concatenate([xy[:, 0], xy[:, 1]]),
-        np.concatenate([var, var]),
+        coord,
+        var2,
         np.concatenate([xy[:, 1], xy[:, 0]]),
-        groups,
-        np.concatenate([usable, usable]),
+        both_axes(tx, rx),
+        usable2,
         min_scatter_mm,
         None if shared_xy is None else np.concatenate(shared_xy),
-        None if design_xy is None else np.concatenate(design_xy),
-        np.repeat([0, 1], n),
+        design,
+        family,
     )
     return np.column_stack([out[:n], out[n:]]), out_var[:n], out_var[n:]
+
+
+def _stack_axes(xy, var, usable, design_xy):
+    """Every sensor's x then its y as one (2N,) coordinate, with its variance, usability,
+    wire design (None: none) and family (0: x, 1: y), as ``both_axes`` numbers the wires."""
+    design = None if design_xy is None else np.concatenate(design_xy)
+    family = np.repeat([0, 1], len(var))
+    both = np.concatenate
+    return both([xy[:, 0], xy[:, 1]]), both([var, var]), both([usable, usable]), design, family
+
+
+def _wire_members(groups: np.ndarray, usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(G, N) which sensors cross each wire (one row per wire id >= 0, ascending), and which
+    of those are usable."""
+    gids = np.unique(groups[groups >= 0])
+    in_group = groups[None, :] == gids[:, None]
+    return in_group, in_group & usable[None, :]
 
 
 def both_axes(tx: np.ndarray, rx: np.ndarray) -> np.ndarray:
@@ -203,20 +218,9 @@ def design_scatter_mm(
     """How far the wires lie off the design map, in mm (sd; the larger axis): the scatter
     the design prior is weighed with (>= ``min_scatter_mm``); NaN if no axis has one.
     Arguments as ``shrink_to_layout``'s."""
-    n = len(var)
-    groups = both_axes(tx, rx)
-    gids = np.unique(groups[groups >= 0])
-    in_group = groups[None, :] == gids[:, None]
-    member = in_group & np.concatenate([usable, usable])[None, :]
-    fitted = _design_map(
-        np.concatenate([xy[:, 0], xy[:, 1]]),
-        np.concatenate([var, var]),
-        in_group,
-        member,
-        np.concatenate(design_xy),
-        np.repeat([0, 1], n),
-        min_scatter_mm,
-    )
+    coord, var2, usable2, design, family = _stack_axes(xy, var, usable, design_xy)
+    in_group, member = _wire_members(both_axes(tx, rx), usable2)
+    fitted = _design_map(coord, var2, in_group, member, design, family, min_scatter_mm)
     return float("nan") if fitted is None else float(np.sqrt(fitted[-1].max()))
 
 
