@@ -225,6 +225,22 @@ def test_scattered_non_grid_probes(patch_b, probe):
     assert np.sqrt((e**2).sum() / (len(e) - 1)) <= (0.4 if probe == "robot" else 1.2)
 
 
+def test_sparse_scattered_touches_do_not_collapse_the_fits_onto_single_touches(patch_b):
+    """100 touches scattered over Patch B lie about 2.2 mm from their nearest neighbour but
+    far more from most others. A starting width was judged in a window of two such
+    spacings, which held one or two touches and fitted any width exactly, so the narrowest
+    won: on this session 25 of 30 fits collapsed onto single touches (`irregular`) and one
+    was `ok` 5.0 mm off at sigma 0.61 mm (benchmarks/localizer_stress.py, scatter 100)."""
+    rng = np.random.default_rng([509, 7])
+    pts = np.column_stack([rng.uniform(3.0, 149.4, 100), rng.uniform(3.0, 22.4, 100)])
+    s = simulate_session(patch_b, pts, probe="finger", seed=509)
+    pred = check(peakfit.localize(s.point_logs(), patch=patch_b), 30)
+    e = ok_errors(pred, s.truth)
+    assert len(e) >= 27
+    assert np.sqrt(np.mean(e**2)) <= 1.0
+    assert e.max() <= 2.0
+
+
 def test_no_sensor_data_at_all():
     logs = PointLogs(
         sensors=("A", "B"),

@@ -40,6 +40,9 @@ _TIP_NORM = float(np.sqrt(1.0 + _TIP**2) - _TIP)
 N_PARAMS = 10  # sx, sy, log wx, log wy, a, b0, b1, b2, ridge along RX (y = sy), along TX
 SX, SY, LW, LWY, AMP, B0, B1, B2, CRX, CTX = range(N_PARAMS)
 WIDTHS = slice(LW, LWY + 1)  # both log widths, as a view
+# Effective touches (window weights) a fit needs to be judged at all: fewer, and a fit
+# with this many parameters follows the touches it has, whatever the peak is.
+MIN_FIT_TOUCHES = 6.0
 MIN_WIDTH_SPACINGS = 0.3  # a footprint much narrower than the probe spacing is unresolvable
 MAX_WIDTH_SPACINGS = 15.0
 # A touch's nuisances stay within these: its log pressing gain, and its placement offset

@@ -117,7 +117,7 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     sane = (
         finite
         & f.converged
-        & (f.n_eff >= 6.0)
+        & (f.n_eff >= pm.MIN_FIT_TOUCHES)
         & ~weak_model
         & (moved <= np.maximum(2.0 * w, 2.0 * h))
         & (w > 0.1 * h)

@@ -685,6 +685,7 @@ class Localizer:
         S = U.shape[1]
         theta = theta.copy()
         best = np.full(S, np.inf)
+        best_enough = np.zeros(S, bool)
         Uz = np.where(valid, U, 0.0)
         vf = valid.astype(float)
         for wc in (0.6 * h, 1.0 * h, 1.6 * h, 2.5 * h):
@@ -701,8 +702,16 @@ class Localizer:
             b = np.where(ok, (s2 * t0 - s1 * t1) / np.where(ok, det, 1), 0.0)
             r = Uz - b[None, :] - a[None, :] * g
             sse = (win * r * r).sum(0) / np.maximum(s0, 1e-12)
-            better = (sse < best) & (a > 0)
+            # A window holding fewer touches than a sane fit needs fits any width (two
+            # touches, two unknowns: no residual at all), so among scattered probes, where
+            # the nearest-neighbour spacing leaves one or two touches within two spacings,
+            # the narrowest width won and the fits collapsed onto single touches (a
+            # scattered 100-touch Patch B finger session: 3 of 30 sensors located). Such
+            # a width wins only where no window holds enough (early in a sparse session).
+            enough = s0 >= pm.MIN_FIT_TOUCHES
+            better = (a > 0) & ((enough & ~best_enough) | ((enough == best_enough) & (sse < best)))
             best = np.where(better, sse, best)
+            best_enough |= better & enough
             theta[better, pm.LW] = theta[better, pm.LWY] = np.log(wc)
             theta[better, pm.AMP] = a[better]
             theta[better, pm.B0] = b[better]
@@ -1097,7 +1106,7 @@ class Localizer:
         DESIGN_LOOSE_MM: a patch built (or laid) that far off its design."""
         f = self.fit
         var = np.diagonal(f.cov_xy, axis1=1, axis2=2).mean(axis=1)
-        usable = f.has_model() & f.converged & (f.n_eff >= 6.0) & np.isfinite(var)
+        usable = f.has_model() & f.converged & (f.n_eff >= pm.MIN_FIT_TOUCHES) & np.isfinite(var)
         tx, rx = self.groups
         floor = float(self.params["wire_scatter_mm"])
         scatter = design_scatter_mm(f.theta[:, :2], var, tx, rx, usable, self.design, floor)
