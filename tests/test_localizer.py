@@ -579,6 +579,29 @@ def test_layout_prior_ignores_a_sensor_without_a_coordinate():
     assert np.all(np.abs(out[:9] - coord[:9]) <= 0.2)
 
 
+def test_a_crossing_far_off_its_wire_gets_an_error_bar_that_spans_the_distance():
+    """One crossing of an RX wire of ten fitted 6 mm off the line its nine mates draw (a fit
+    gone astray: widths spread x3, Patch B finger seed 502's S26, 6.2 mm off at sigma 0.91
+    mm). Its own fit or its wire is wrong, and the prior cannot tell which, so its error
+    bar must span the distance; the mates keep theirs. Before, the one crossing widened
+    the wire's scatter to about 2 mm, so its pull and its error bar stayed small."""
+    from varskin.localization._layout_prior import shrink_to_wires
+
+    rng = np.random.default_rng(3)
+    coord = 13.0 + rng.normal(0.0, 0.1, 10)
+    coord[6] = 19.2
+    var = np.full(10, 0.04)
+    var[6] = 0.25
+    groups = np.zeros(10, int)
+    usable = np.ones(10, bool)
+    out, out_var = shrink_to_wires(coord, var, np.arange(10.0) * 15.0, groups, usable, 0.25)
+    sd = math.sqrt(out_var[6])
+    assert abs(out[6] - 13.0) <= 2.0 * sd, (out[6], sd)  # if the wire is right
+    assert abs(out[6] - 19.2) <= 2.0 * sd, (out[6], sd)  # if the fit is right
+    mates = np.arange(10) != 6
+    assert np.all(out_var[mates] <= 0.04), out_var[mates]
+
+
 def test_with_few_wires_the_design_map_is_an_offset_from_the_design():
     """Under 5 wires the map from design to fitted coordinates is an offset alone: a wire's
     design prior is its design plus the offset its wire-mates show. Three RX wires designed
