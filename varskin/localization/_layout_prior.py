@@ -90,14 +90,7 @@ def shrink_to_wires(
     # never left out, so a lone crossing is still pulled towards it.
     p0 = np.where(has_prior, 1.0 / np.where(has_prior, s2, 1.0), 0.0)
     pb = np.where(has_prior, mu, 0.0) * p0
-    a00 = w.sum(axis=1) + p0
-    a01 = (w * tc).sum(axis=1)
-    a11 = (w * tc * tc).sum(axis=1) + np.where(slanted, 0.0, 1.0)
-    i00, i01, i11 = _inv_sym2(a00, a01, a11)
-    r0 = (w * c).sum(axis=1) + pb
-    r1 = (w * tc * c).sum(axis=1)
-    beta0 = i00 * r0 + i01 * r1
-    beta1 = i01 * r0 + i11 * r1
+    beta0, beta1, (i00, i01, i11) = _weighted_lines(c, w, tc, slanted, p0, pb)
     fitted = beta0[:, None] + beta1[:, None] * tc
     quad = i00[:, None] + 2.0 * i01[:, None] * tc + i11[:, None] * tc * tc
     lev = np.clip(w * quad, 0.0, 1.0 - 1e-9)
@@ -152,19 +145,27 @@ def _off_line(c, v, tc, mask, slanted, p0, pb, min_scatter_mm):
     count = rows.sum(axis=1)
     tau2 = _scatter_rows(cc, vv, tt, rows, count, np.where(sl, 2, 1), min_scatter_mm)
     w = np.where(rows, 1.0 / (vv + tau2[:, None]), 0.0)
-    q0, qb = np.repeat(p0, M), np.repeat(pb, M)
-    i00, i01, i11 = _inv_sym2(
-        w.sum(axis=1) + q0, (w * tt).sum(axis=1), (w * tt * tt).sum(axis=1) + np.where(sl, 0.0, 1.0)
-    )
-    r0 = (w * cc).sum(axis=1) + qb
-    r1 = (w * tt * cc).sum(axis=1)
+    q0 = np.repeat(p0, M)
+    b0, b1, (i00, i01, i11) = _weighted_lines(cc, w, tt, sl, q0, np.repeat(pb, M))
     t_own = np.where(sl, tc.reshape(G * M), 0.0)
-    pred = (i00 * r0 + i01 * r1) + t_own * (i01 * r0 + i11 * r1)
+    pred = b0 + t_own * b1
     pvar = i00 + 2.0 * i01 * t_own + i11 * t_own * t_own
     informed = (count > 0) | (q0 > 0)
     total = v.reshape(G * M) + tau2 + pvar
     z = np.where(informed, (c.reshape(G * M) - pred) / np.sqrt(total), 0.0)
     return pred.reshape(G, M), z.reshape(G, M)
+
+
+def _weighted_lines(c, w, tc, slanted, p0, pb):
+    """One weighted least-squares line ``c ~ b0 + b1 tc`` per row of (G, M) values ``c`` with
+    weights ``w`` (the slope pinned at 0 where not ``slanted``), the design a pseudo-
+    observation of b0 with precision ``p0`` (``pb``: its value times ``p0``): (G,) b0, b1 and
+    the inverse normal matrix (i00, i01, i11)."""
+    a11 = (w * tc * tc).sum(axis=1) + np.where(slanted, 0.0, 1.0)
+    i00, i01, i11 = _inv_sym2(w.sum(axis=1) + p0, (w * tc).sum(axis=1), a11)
+    r0 = (w * c).sum(axis=1) + pb
+    r1 = (w * tc * c).sum(axis=1)
+    return i00 * r0 + i01 * r1, i01 * r0 + i11 * r1, (i00, i01, i11)
 
 
 def shrink_to_layout(
