@@ -141,13 +141,13 @@ def _off_line(c, v, tc, mask, slanted, p0, pb, min_scatter_mm):
     cc = np.repeat(c, M, axis=0)
     vv = np.repeat(v, M, axis=0)
     sl = np.repeat(slanted, M)
-    tt = np.where(rows & sl[:, None], np.repeat(tc, M, axis=0), 0.0)
+    tt = np.repeat(tc, M, axis=0)  # zero already where the wire's line is a constant
     count = rows.sum(axis=1)
     tau2 = _scatter_rows(cc, vv, tt, rows, count, np.where(sl, 2, 1), min_scatter_mm)
     w = np.where(rows, 1.0 / (vv + tau2[:, None]), 0.0)
     q0 = np.repeat(p0, M)
     b0, b1, (i00, i01, i11) = _weighted_lines(cc, w, tt, sl, q0, np.repeat(pb, M))
-    t_own = np.where(sl, tc.reshape(G * M), 0.0)
+    t_own = tc.reshape(G * M)
     pred = b0 + t_own * b1
     pvar = i00 + 2.0 * i01 * t_own + i11 * t_own * t_own
     informed = (count > 0) | (q0 > 0)
