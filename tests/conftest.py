@@ -1,10 +1,20 @@
-"""Shared fixtures and the opt-in markers for hardware and long-running tests."""
+"""Shared fixtures, the opt-in markers for hardware and long-running tests, and how the
+suite shares the machine's cores."""
 
 from __future__ import annotations
 
-import pytest
+import os
 
-from varskin.patch import builtin_patch
+# Each pytest-xdist worker (pyproject's `-n auto`) takes one core. Set before numpy loads
+# here; the workers and any session a test starts inherit it. With OpenBLAS's own thread
+# pool in every worker the two cores were oversubscribed: the suite took 266 s instead of
+# 233 s (docs/benchmarks.md, "The test suite's time").
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+
+from varskin.patch import builtin_patch  # noqa: E402
 
 
 def pytest_addoption(parser):
@@ -12,6 +22,14 @@ def pytest_addoption(parser):
         "--hardware", action="store_true", help="run tests that need a real UR arm or Muca board"
     )
     parser.addoption("--slow", action="store_true", help="run long soaks and benchmark-sized tests")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    # Real hardware is driven by one process at a time, and its tests do not share the CPU
+    # with the localizer's: --hardware runs the whole selection in this one process.
+    if config.getoption("--hardware"):
+        config.option.numprocesses = 0
 
 
 def pytest_collection_modifyitems(config, items):
