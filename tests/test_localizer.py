@@ -12,7 +12,16 @@ import numpy as np
 import pytest
 
 from varskin.errors import InputError
-from varskin.localization import DEFAULT_METHOD, _hull, _statuses, localize, paper, peakfit
+from varskin.localization import (
+    DEFAULT_METHOD,
+    _hull,
+    _maps,
+    _shape_screen,
+    _statuses,
+    localize,
+    paper,
+    peakfit,
+)
 from varskin.predictions import OK
 from varskin.scene import SceneParams
 from varskin.simulate import simulate_session, uniform_grid
@@ -53,8 +62,8 @@ def test_robot_probed_grid_is_within_0_3_mm_rms(patch_name, request):
         # Every sensor located, but for at most one weak sensor whose offset moved by most
         # of its peak during its own touches (seed 0's S1: 86 counts, -80 counts drift).
         statuses = [p.status for p in pred]
-        assert set(statuses) <= {OK, peakfit.DRIFTING}, statuses
-        assert statuses.count(peakfit.DRIFTING) <= 1, statuses
+        assert set(statuses) <= {OK, _statuses.DRIFTING}, statuses
+        assert statuses.count(_statuses.DRIFTING) <= 1, statuses
         assert rms(e) <= 0.3, (seed, rms(e))
         assert np.nanmax(e) <= 2.0
 
@@ -129,7 +138,7 @@ def test_the_patch_chooses_its_response_shape(shape, patch_a):
         assert pred.params["response_shape"] == shape, (seed, pred.params)
         z = pred.params["response_shape_z"]
         # the test statistic of the best other shape: beyond the threshold only if it won
-        assert (z < -peakfit.SHAPE_Z) == (shape != "lorentzian"), (seed, z)
+        assert (z < -_shape_screen.SHAPE_Z) == (shape != "lorentzian"), (seed, z)
         e = errors(pred, s.truth)
         inside["auto"] += within_two_sigma(pred, e)
         if shape == "lorentzian":
@@ -153,7 +162,7 @@ def test_a_larger_patch_screens_shapes_on_a_block_and_leaves_no_trace(shape, pat
     around its middle (here Patch B's 30 stand in for a board, with a block of 16). The
     screen's rounds re-fit the block alone, it still finds the shape, and it leaves nothing
     behind: the result is exactly the solve with that shape given."""
-    monkeypatch.setattr(peakfit, "SHAPE_SCREEN_SENSORS", 16)
+    monkeypatch.setattr(_shape_screen, "SHAPE_SCREEN_SENSORS", 16)
     refitted = []
     polish = peakfit.Localizer._polish
 
@@ -165,7 +174,7 @@ def test_a_larger_patch_screens_shapes_on_a_block_and_leaves_no_trace(shape, pat
     logs = session(patch_b, "robot", 300, shape=shape).point_logs()
     auto = localize(logs, patch=patch_b)
     assert auto.params["response_shape"] == shape
-    assert (auto.params["response_shape_z"] < -peakfit.SHAPE_Z) == (shape != "lorentzian")
+    assert (auto.params["response_shape_z"] < -_shape_screen.SHAPE_Z) == (shape != "lorentzian")
     assert refitted.count(16) == len(peakfit.pm.SHAPES)  # one short solve per shape
     assert set(refitted) == {16, 30}  # the solves themselves re-fit every sensor
     given = localize(logs, patch=patch_b, response_shape=shape)
@@ -557,7 +566,7 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
         a[-1, 2] = -np.inf
         with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
             want = np.nanmedian(a, axis=0)
-        got = peakfit._nanmedian_cols(a)
+        got = _maps.nanmedian_cols(a)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)
 

@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from varskin.localization import peakfit
+from varskin.localization import _drifting, peakfit
 from varskin.localization._settling import board_settling
+from varskin.localization._statuses import DRIFTING
 from varskin.patch import patch_from_dict
 from varskin.pointlogs import PointLogs
 from varskin.predictions import OK
@@ -320,7 +321,7 @@ def test_sensor_probed_first_while_its_offset_settles(patch_a, seed, drift, i):
     if est.status == OK:
         assert e <= min(TOL_MM, 2.0 * est.sigma_mm), (e, est.sigma_mm)
     else:
-        assert est.status == peakfit.DRIFTING, est.status
+        assert est.status == DRIFTING, est.status
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3, 4])
@@ -366,8 +367,8 @@ def test_a_finger_fit_that_did_not_follow_the_settling_is_drifting(
     pred = check(peakfit.localize(s.point_logs()), 30)
     statuses = [e.status for e in pred]
     if guard:
-        assert statuses[2] == peakfit.DRIFTING
-        assert statuses.count(peakfit.DRIFTING) == 1, statuses
+        assert statuses[2] == DRIFTING
+        assert statuses.count(DRIFTING) == 1, statuses
     else:
         assert statuses[2] == OK and err(pred, s.truth, 2) > 2.0
         assert err(pred, s.truth, 2) > 4.0 * pred.estimates[2].sigma_mm
@@ -379,10 +380,10 @@ def test_a_board_corner_the_settling_moved_is_placed_by_its_later_touches(monkey
     S1 is the corner the scan starts at, probed while the offsets settle. Only 0.13 of its
     peak went unfollowed (under UNFOLLOWED_FRACTION), but that moved it 2.2 mm at 5.5
     sigma. With the settling taken out of its readings its fit moves 2 mm, so it is
-    `drifting`; the scan's next pass over it places it (_refit_after_settling).
+    `drifting`; the scan's next pass over it places it (_drifting.refit_after_settling).
     No `ok` sensor of the board is then more than 2 mm and 3 sigma off."""
     if not guard:  # shows the scene is one the check must catch
-        monkeypatch.setattr(peakfit, "SETTLING_MOVE_MM", np.inf)
+        monkeypatch.setattr(_drifting, "SETTLING_MOVE_MM", np.inf)
     board = patch_from_dict(
         {
             "name": "muca_full",

@@ -53,7 +53,7 @@ DRIFT_FRACTION = 0.5
 # peaks 0.58, 1.75 and 2.78 mm off; docs/benchmarks.md, "Settling the fit did not follow").
 UNFOLLOWED_FRACTION = 0.35
 # ... or taking that settling out of its readings moves its fit too far for its error bar
-# (peakfit.Localizer._settling_moved, judged in each batch solve).
+# (_drifting.moved_by_settling, judged in each batch solve).
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
 
 
@@ -257,7 +257,7 @@ def drift_measures(loc: Localizer, inside: np.ndarray) -> tuple[np.ndarray, np.n
 def drifting_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
     """(N,) bool: the sensor's offset settled during its own touches faster than its fit
     followed, by either of ``drift_measures`` (DRIFT_FRACTION, UNFOLLOWED_FRACTION), or the
-    last batch solve found that settling moves its fit too far (``_settling_moved``)."""
+    last batch solve found that settling moves its fit too far (``_drifting.moved_by_settling``)."""
     own, missed = drift_measures(loc, inside)
     return (
         (np.isfinite(own) & (own > DRIFT_FRACTION))

@@ -6,7 +6,9 @@ pulled inwards at the edge). This method fits each sensor's point log map with a
 bump over its own (drifting) floor, only near the peak and with a robust loss, solving all
 sensors at once in numpy. A ``Localizer`` takes one point log at a time and re-fits only the
 sensors the new touch informs, warm-started, so a live session sees estimates as it goes;
-``localize`` is the same machinery fed with every log at once. See docs/localizer.md.
+``localize`` is the same machinery fed with every log at once. The steps around the solve
+(the live update, the shape screen, second peaks, the settling check, statuses, the layout
+prior, the error-bar check) are modules of their own beside this one. See docs/localizer.md.
 """
 
 from __future__ import annotations
@@ -20,24 +22,19 @@ import numpy as np
 
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
+from varskin.localization._drifting import moved_by_settling, refit_after_settling, settling_of
 from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
 from varskin.localization._layout_prior import design_scatter_mm
-from varskin.localization._settling import board_settling
-from varskin.localization._statuses import (
-    DEAD,
-    DRIFTING,
-    IRREGULAR,
-    UNCERTAIN,
-    drift_measures,
-    drifting_during_own_touches,
-    judge,
-    window_members,
-)
+from varskin.localization._live_update import update
+from varskin.localization._maps import floor_trend, nanmedian_cols
+from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
+from varskin.localization._shape_screen import favoured_shape
+from varskin.localization._statuses import DEAD, judge, window_members
 from varskin.patch import Patch
 from varskin.pointlogs import MAX_TIME_S, PointLog, PointLogs
-from varskin.predictions import OK, R95_PER_AXIS_SD, Predictions, SensorEstimate
+from varskin.predictions import OK, Predictions, SensorEstimate
 from varskin.scene import ADC_MAX
 
 NAME = "peakfit"
@@ -82,35 +79,9 @@ JOINT_SETTLE_ROUNDS = 8
 DESIGN_LOOSE_MM = 1.0
 JOINT_SETTLE_GUARD = 1.15
 JOINT_STEPS = 2
-# The response shape (``response_shape`` "auto"): another of pm.SHAPES replaces the
-# Lorentzian only if the paired test over sensors favours it beyond SHAPE_Z standard errors,
-# with at least SHAPE_MIN_SENSORS sensors to test on (_favoured_shape).
-SHAPE_Z = 3.0
-SHAPE_MIN_SENSORS = 8
-SHAPE_SCREEN_ROUNDS = 2
-# A larger patch screens on the SHAPE_SCREEN_SENSORS sensors nearest its middle, the touches
-# their windows hold, and no others: the screen's cost then stays that of a 64-sensor patch
-# (the full board's batch solve took 2.1-2.3 s with every sensor screened, against its 2 s
-# budget), while its paired test keeps twice the sensors of Patch B.
-SHAPE_SCREEN_SENSORS = 64
 # LM iterations per sensor in a polish round (warm-started). Located sensors converge in a
 # few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
 POLISH_MAX_ITER: int | None = 25
-# LM iterations of a live update's re-fit (warm-started): 3 is the fewest the fit's stop
-# rule runs. Against 4, on Patch B seeds 0-15, robot and finger, updates 50-100: the live
-# RMS of the `ok` sensors is lower (median 0.22-0.27 against 0.24-0.34 mm robot, 0.80
-# against 0.82-0.87 mm finger), 0.3-0.5 fewer of ~17 sensors are `ok`, and the last
-# update's largest gap to the batch is about the same (1.1-1.6 sigma either way).
-UPDATE_ITERATIONS = 3
-# ... and of the second, shorter pass after the touch's own gain and placement are known:
-# it starts from the first pass's fit and moves it by a fraction of a millimetre.
-REFIT_ITERATIONS = 2
-# A reading this far above a sensor's last RECENT_TOUCHES readings, beyond what its model's
-# bump predicts at a touch outside its window (in the map's heights, and in residual
-# sigmas), makes a live update restart that sensor from its map's top.
-UNEXPLAINED_HEIGHT = 0.5
-UNEXPLAINED_SIGMAS = 5.0
-RECENT_TOUCHES = 6
 
 DEFAULTS: dict = {
     "inverted": None,  # None: detect from the maps; True/False: the bench's sign
@@ -145,31 +116,10 @@ DEFAULTS: dict = {
     # The `joint` solver always reports the first-order sigma.
     "calibrate_sigma": True,
     # The bump's profile (pm.SHAPES: "lorentzian", "gaussian", "exponential"), or "auto": the
-    # Lorentzian unless the maps favour another (_favoured_shape).
+    # Lorentzian unless the maps favour another (_shape_screen.py).
     "response_shape": "auto",
 }
 
-# A `drifting` sensor probed again after the probe was away for more than this many
-# touches' time is re-fitted from the touches since it came back (_refit_after_settling).
-REPROBE_AWAY_TOUCHES = 4
-# The board's settling, taken out of a sensor's readings (_settling_moved), must move its
-# fit by more than this many of its first-order sigmas and this many mm for `drifting`;
-# only sensors with more than SETTLING_CHECK_FRACTION of their peak unfollowed are re-fitted
-# to see. Session 38 tried it at 2 sigma and no floor in mm: on Patch B robot it flagged 24
-# of 158 re-fitted sensors, 3 of them beyond 2 sigma. With the floor, results are identical
-# on Patch A and B, robot and finger, seeds 300-329, patch given (and Patch B finger
-# without); on board seeds 0-7 (robot 50 x 20, no patch) seed 1's S1 (2.20 mm off at 5.5
-# sigma) is flagged and re-placed from the scan's next pass, 0.46 mm off; the stress table
-# locates 10 fewer of 15,214 (docs/benchmarks.md, "Settling measured in millimetres").
-SETTLING_MOVE_SIGMAS = 3.0
-SETTLING_MOVE_MM = 1.0
-SETTLING_CHECK_FRACTION = 0.05
-# A second peak of a map (_second_peaks): its detrended height relative to the fitted
-# peak's, the radius (probe spacings) of its backing touch and of the start search around
-# it, and by how much one peak's effective touch count must beat the other's to win.
-SECOND_PEAK_FRACTION = 0.6
-SEED_RADIUS_SPACINGS = 1.5
-SECOND_PEAK_RATIO = 1.5
 # Probes whose rms distance from their best line is below this lie on a line ("collinear").
 COLLINEAR_RMS_MM = 0.25
 
@@ -371,14 +321,14 @@ class Localizer:
         # later for a sensor whose offset was still settling during its first touches.
         self._t_from = np.full(n, -np.inf)
         # Per sensor, the touch near which its fit must start (-1: the map's top), and
-        # whether its map has two peaks that fit equally well (see _second_peaks).
+        # whether its map has two peaks that fit equally well (see _second_peaks.py).
         self._seed_k = np.full(n, -1)
         self._two_peaks = np.zeros(n, bool)
         # The board's offset settling as the last batch solve saw it (_settling.py): its
         # time course over the touches then, and each sensor's settled level; None: unknown.
         self._settling: tuple[np.ndarray, np.ndarray] | None = None
         # Per sensor: taking that settling out of its readings moved its fit too far for
-        # its error bar (_settling_moved; one of the `drifting` reasons).
+        # its error bar (_drifting.py; one of the `drifting` reasons).
         self._moved_by_settling = np.zeros(n, bool)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
@@ -494,7 +444,7 @@ class Localizer:
         if self._k < 3 or not np.isfinite(V).any():
             return self._sign
         with np.errstate(all="ignore"):
-            med = _nanmedian_cols(V)
+            med = nanmedian_cols(V)
             up = np.nanmax(V, axis=0) - med
             down = med - np.nanmin(V, axis=0)
         # The bench decides the sign for every sensor: a majority of the sensors that are clear.
@@ -534,13 +484,13 @@ class Localizer:
         valid &= tau[:, None] >= self._t_from[cols][None, :]
         Vv = np.where(valid, V, np.nan)
         with np.errstate(all="ignore"):
-            floor = _nanmedian_cols(Vv)
+            floor = nanmedian_cols(Vv)
             top = np.nanmax(Vv, axis=0)
         floor = np.where(np.isfinite(floor), floor, 0.0)
         amp = top - floor
         amp = np.where(np.isfinite(amp) & (amp > 0), amp, 1.0)
         U = (np.where(valid, V, 0.0) - floor[None, :]) / amp[None, :]
-        return U, U - _floor_trend(U, valid), valid, floor, amp
+        return U, U - floor_trend(U, valid), valid, floor, amp
 
     def _raw_counts(self) -> bool:
         """Do rest values look like Muca ADC counts (so ADC clipping can be judged)?"""
@@ -560,7 +510,7 @@ class Localizer:
         clipped = self._clipped(cols)
         U, D, valid, floor, amp = self._maps(cols, clipped)
         with np.errstate(all="ignore"):
-            noise = _nanmedian_cols(self._noise[:K][:, cols]) / amp
+            noise = nanmedian_cols(self._noise[:K][:, cols]) / amp
         noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
         return clipped, U, D, valid, floor, amp, noise
 
@@ -589,7 +539,7 @@ class Localizer:
         h = self.spacing()
         min_radius = self.settings.window_spacings * h
         # The start: the top of the detrended map D, or near the touch a second-peak check
-        # chose (_second_peaks).
+        # chose (_second_peaks.py).
         near = valid.copy()
         seeded = self._seed_k[cols] >= 0
         if seeded.any():
@@ -867,7 +817,7 @@ class Localizer:
                 )
                 msq = np.mean(self._dxy[:K][use] ** 2, axis=1) + v_d[use]
                 self.place_sd_mm = float(np.clip(np.sqrt(np.mean(msq)), self._place_floor, 3.0))
-            self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
+            self._refit_warm(cols)
         self._dirty = False
 
     def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
@@ -897,7 +847,7 @@ class Localizer:
             self.settings = replace(self.settings, shape=self._fixed_shape or pm.SHAPES[0])
         self._solve_once()
         if calibrate and self._fixed_shape is None and self._k >= 3:
-            shape, self._shape_z = self._favoured_shape()
+            shape, self._shape_z = favoured_shape(self)
             if shape != self.settings.shape:
                 self.settings = replace(self.settings, shape=shape)
                 self._solve_once()
@@ -947,136 +897,14 @@ class Localizer:
             self._polish(settle, SETTLE_RELAX)
             self._settled = True
             self._try_joint_settle()
-        self._second_peaks()
-        self._settling = self._board_settling()
+        second_peaks(self)
+        self._settling = settling_of(self)
         # Both judge the fits as they stand here (the settling check puts its re-fit back).
         inside = window_members(
             self, self.fit.theta[:, :2], pm.half_width(self.fit.theta), self.spacing()
         )
-        self._moved_by_settling = self._settling_moved(inside)
-        self._refit_after_settling(inside)
-
-    def _favoured_shape(self) -> tuple[str, float | None]:
-        """The response shape the maps favour, and its paired z (None: not tested).
-
-        Every shape gets a short solve from this solve's state: the sensors fitted
-        again, warm-started, then SHAPE_SCREEN_ROUNDS rounds of the touches' nuisances and
-        the sensors (those absorb part of a shape's misfit, so the shape must have its own).
-        The current shape gets the same short solve: the full solve's own residual scale
-        is no reference (on a scattered finger plan a short solve from its end, at its own
-        shape, lowered it by 0.47 in log on average, and the comparison with it chose a
-        shape the scene did not have). A shape wins only if it lowers the converged sensors'
-        robust residual scale across the patch, by a paired test over sensors (log scale
-        ratio, mean over its standard error) below -SHAPE_Z: every sensor of a patch answers
-        the same probe, so they share one shape, where one sensor alone cannot tell the
-        shapes apart from noise. The state is put back afterwards (docs/localizer.md,
-        "Robustness to a wrong response model").
-        """
-        f = self.fit
-        cols = np.flatnonzero(f.has_model() & f.converged)
-        current = self.settings.shape
-        if cols.size < SHAPE_MIN_SENSORS:
-            return current, None
-        kept = self._touch_and_fit_state()
-        block = self._screened(cols)
-        sub = block.size < cols.size
-        hidden = np.setdiff1d(np.arange(len(self.sensors)), block) if sub else block[:0]
-        polished = block if sub else None
-        scales = {}
-        for shape in pm.SHAPES:
-            # Sensors outside the screen's block have no model while it runs: the touches'
-            # nuisances and the shared footprint come from the block alone.
-            f.fitted[hidden] = False
-            # The touches' gains and offsets and the shared footprint absorb part of a
-            # wrong shape's misfit: each shape gets its own, as a short solve would.
-            self.settings = replace(self.settings, shape=shape)
-            self._solve(block, np.ones(block.size, bool), max_iter=POLISH_MAX_ITER)
-            self._polish(SHAPE_SCREEN_ROUNDS, cols=polished)
-            scales[shape] = np.log(np.maximum(f.scale[block], 1e-300))
-            self._set_touch_and_fit_state(kept)
-        best, best_z, best_gain = current, None, 0.0
-        for shape, scale in scales.items():
-            if shape == current:
-                continue
-            d = scale - scales[current]
-            d = d[np.isfinite(d)]
-            sd = float(np.std(d, ddof=1)) if d.size >= SHAPE_MIN_SENSORS else 0.0
-            if sd <= 0.0:
-                continue
-            z = float(np.mean(d)) / (sd / math.sqrt(d.size))
-            if best_z is None or z < best_z:
-                best_z = z
-            if z < -SHAPE_Z and float(np.mean(d)) < best_gain:
-                best, best_gain = shape, float(np.mean(d))
-        self.settings = replace(self.settings, shape=current)
-        return best, best_z
-
-    def _screened(self, cols: np.ndarray) -> np.ndarray:
-        """The sensors of ``cols`` the shape screen fits: all of them, or on a larger patch
-        the SHAPE_SCREEN_SENSORS nearest the middle of their fitted positions (a block, so
-        the touches inside it keep every sensor that sees them)."""
-        if cols.size <= SHAPE_SCREEN_SENSORS:
-            return cols
-        xy = self.fit.theta[cols][:, [pm.SX, pm.SY]]
-        d = np.hypot(*(xy - np.median(xy, axis=0)).T)
-        return np.sort(cols[np.argsort(d, kind="stable")[:SHAPE_SCREEN_SENSORS]])
-
-    def _board_settling(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The board's settling from the fits as they stand (_settling.py); None where the
-        values are not relative to a measured rest (no baseline: no settling to speak of)."""
-        if self.rest is None:
-            return None
-        K, f = self._k, self.fit
-        V = np.where(self._missed[:K, None], np.nan, self._V[:K] * self._sign)
-        w = pm.half_width(f.theta)
-        usable = f.has_model()
-        with np.errstate(all="ignore"):
-            noise = _nanmedian_cols(self._noise[:K])
-        if self.rest_sd is not None:  # logs without sample sds: the baseline's
-            noise = np.where(np.isfinite(noise), noise, self.rest_sd)
-        P = self._P[:K] + self._dxy[:K]
-        return board_settling(V, P, self._tau(), f.theta[:, :2], w, usable, noise)
-
-    def _settling_moved(self, inside: np.ndarray) -> np.ndarray:
-        """(N,) bool: the sensors whose fit, warm re-fitted with the board's settling (as
-        ``_board_settling`` read it) taken out of their readings, moves by more than
-        SETTLING_MOVE_SIGMAS of its own first-order sigma and SETTLING_MOVE_MM; ``inside``
-        the touches in each fit's window (``window_members``).
-
-        The settling the fit did not follow is judged in peak heights (``unfollowed``), and
-        a small fraction can still cost millimetres: on a full board's robot grid (6 x 10
-        mm) the corner sensor probed first was 2.2 mm off at 5.5 sigma with only 0.13 of
-        its peak unfollowed. The re-fit says it in millimetres. It judges; it does not
-        correct: on a 30-sensor patch the settling is read from few far sensors, and there
-        a re-fit that moved a sensor 2.4 mm took it to 5.8 mm off (docs/benchmarks.md,
-        "Settling measured in millimetres").
-        """
-        n = len(self.sensors)
-        out = np.zeros(n, bool)
-        if self._settling is None:
-            return out
-        K, f = self._k, self.fit
-        course, level = self._settling
-        with np.errstate(all="ignore"):
-            _, unfollowed = drift_measures(self, inside)
-        cols = np.flatnonzero(f.has_model() & (unfollowed > SETTLING_CHECK_FRACTION))
-        if cols.size == 0:
-            return out
-        settled = np.nan_to_num(level[cols][None, :] * course[:K, None])  # peak-up units
-        kept = f.copy_of(cols)
-        before = f.theta[cols, :2].copy()
-        sd = np.sqrt(np.maximum(np.trace(f.cov_xy[cols], axis1=1, axis2=2) / 2.0, 0.0))
-        V = self._V[:K, cols].copy()
-        try:
-            self._V[:K, cols] = V - settled * self._sign
-            self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
-            moved = np.hypot(*(f.theta[cols, :2] - before).T)
-        finally:
-            self._V[:K, cols] = V
-            f.put(kept, cols)
-        sigma = sd * R95_PER_AXIS_SD / 2.0
-        out[cols] = (moved > SETTLING_MOVE_SIGMAS * sigma) & (moved > SETTLING_MOVE_MM)
-        return out
+        self._moved_by_settling = moved_by_settling(self, inside)
+        refit_after_settling(self, inside)
 
     def _try_joint_settle(self) -> None:
         """From the settled alternation, joint rounds at its placement scale; kept only if
@@ -1137,233 +965,29 @@ class Localizer:
         """(N,) every sensor's status as the current fits give it."""
         return np.array([e.status for e in _predictions(self)], dtype=object)
 
-    def _refit(self, cols: np.ndarray, cold_iter: int | None = None) -> dict:
-        """Fit sensors ``cols`` afresh, then polish; return the fits they had, for _restore."""
-        kept = self.fit.copy_of(cols)
-        self._solve(cols, np.zeros(cols.size, bool), max_iter=cold_iter)
+    def _refit_warm(self, cols: np.ndarray) -> None:
+        """Fit sensors ``cols`` again from where their fits stand, as a polish round does."""
         self._solve(cols, np.ones(cols.size, bool), max_iter=POLISH_MAX_ITER)
+
+    def _refit(self, cols: np.ndarray, short: bool = False) -> dict:
+        """Fit sensors ``cols`` afresh, then polish; return the fits they had, for _restore.
+        ``short``: the cold start too stops at POLISH_MAX_ITER iterations."""
+        kept = self.fit.copy_of(cols)
+        self._solve(cols, np.zeros(cols.size, bool), max_iter=POLISH_MAX_ITER if short else None)
+        self._refit_warm(cols)
         return kept
 
     def _restore(self, cols: np.ndarray, kept: dict, mask: np.ndarray) -> None:
         """Put back the fits _refit replaced, for the sensors ``cols[mask]``."""
         self.fit.put({name: v[mask] for name, v in kept.items()}, cols[mask])
 
-    def _refit_after_settling(self, inside: np.ndarray) -> None:
-        """Re-fit each `drifting` sensor from the touches since the probe came back to it
-        (``inside``: the touches in each fit's window, ``window_members``).
-
-        A sensor probed first while its offset still settled is `drifting` however often it
-        is probed again: its first touches stay in its window, and the slow floor model
-        cannot follow them. Its later touches, once re-probed, see a steady floor and place
-        it alone. The re-fit is kept only where it passes every check (`drifting` included,
-        judged on the touches it used); otherwise the sensor keeps its fit and its status.
-        """
-        f = self.fit
-        with np.errstate(all="ignore"):
-            drifting = drifting_during_own_touches(self, inside)
-        cols = np.flatnonzero(f.fitted & drifting)
-        if cols.size == 0:
-            return
-        tau = self._tau()
-        inside = inside[:, cols]
-        # The probe must have left and come back: a pass that merely went on over the
-        # sensor (a serpentine grid's next columns) is the same settling, seen from one side.
-        away = REPROBE_AWAY_TOUCHES * float(np.median(np.diff(tau))) if tau.size > 1 else 0.0
-        for j, c in enumerate(cols):
-            t = np.sort(tau[inside[:, j]])
-            back = np.flatnonzero(np.diff(t) > away)
-            if away > 0 and back.size:
-                self._t_from[c] = t[back[0] + 1]
-        cols = cols[np.isfinite(self._t_from[cols])]
-        if cols.size == 0:
-            return
-        kept = self._refit(cols)
-        # The settling check judged the touches the re-fit no longer uses.
-        moved = self._moved_by_settling[cols].copy()
-        self._moved_by_settling[cols] = False
-        failed = self._statuses()[cols] != OK
-        if failed.any():
-            self._restore(cols, kept, failed)
-            self._t_from[cols[failed]] = -np.inf
-            self._moved_by_settling[cols[failed]] = moved[failed]
-
-    def _second_peaks(self) -> None:
-        """Fit again from a second peak of a map, where one stands far from the fitted one.
-
-        The model assumes one bump per map. An offset that settles by more than the peak
-        while the session starts leaves a false top at the first touches, and the fit may
-        take it: `ok`, 100 mm off, sigma 3-5 mm, while the real bump stands elsewhere
-        (benchmarks/localizer_stress.py, drift 1-2x the peak). A map's highest detrended
-        reading outside the fit's window (at the probe's shared footprint), at least
-        SECOND_PEAK_FRACTION of the highest inside and backed by a neighbouring touch, is a
-        second peak; the sensor is fitted again from there. The peak that more touches
-        agree with (effective count, SECOND_PEAK_RATIO) wins, whatever its status: a real
-        bump that is `drifting` beats a confident fit to a settling offset. Only a bump is
-        a rival: a fit that ran off beyond the probes or failed its checks is "backed" by
-        touches that merely show no bump. Two `ok` peaks about equally backed make the
-        sensor `irregular`: the map does not say which one is the sensor. Only `ok`,
-        `uncertain` and (fits that failed their sanity checks) `irregular` sensors are
-        checked: the others already say why they have no position.
-        """
-        f = self.fit
-        K = self._k
-        n = len(self.sensors)
-        cols = np.flatnonzero(f.fitted & np.isfinite(f.theta).all(axis=1))
-        if cols.size == 0:
-            return
-        h = self.spacing()
-        P = self._P[:K] + self._dxy[:K]
-        _, D, valid, _, _ = self._maps(cols, self._clipped(cols))
-        # At the shared footprint: a fit whose own width collapsed must not take its
-        # bump's other flank for a second peak.
-        lw = f.theta[:, [pm.LW, pm.LWY]] if self.shared_lw is None else self.shared_lw[None, :]
-        w = np.broadcast_to(np.exp(0.5 * lw.sum(axis=1)), (n,))
-        inside = window_members(self, f.theta[:, :2], w, h)[:, cols]
-        Dv = np.where(valid, D, -np.inf)
-        top_in = np.where(inside, Dv, -np.inf).max(axis=0)
-        out = np.where(inside, -np.inf, Dv)
-        k2 = np.argmax(out, axis=0)
-        d2 = out[k2, np.arange(cols.size)]
-        d = np.hypot(P[:, 0:1] - P[k2][None, :, 0], P[:, 1:2] - P[k2][None, :, 1])
-        near = (d > 0) & (d <= SEED_RADIUS_SPACINGS * h)
-        backed = (near & (Dv >= 0.5 * d2[None, :])).any(axis=0)
-        cand = np.isfinite(d2) & (d2 > 0) & (d2 >= SECOND_PEAK_FRACTION * top_in) & backed
-        if not cand.any():
-            return
-        # An `ok` call can be silently wrong, an `uncertain` one may be the false top's
-        # loose fit, and so may an `irregular` one that failed the fit's sanity checks
-        # (hard case: Patch B S14, seed 3, once the joint rounds moved the touches); the
-        # others already say why they have no position.
-        before = self._statuses()[cols]
-        insane = (before == IRREGULAR) & ~self._two_peaks[cols]
-        cand &= (before == OK) | (before == UNCERTAIN) | insane
-        if not cand.any():
-            return
-        c = cols[cand]
-        self._seed_k[c] = k2[cand]
-        kept = self._refit(c, cold_iter=POLISH_MAX_ITER)
-        after = self._statuses()[c]
-        radius = np.maximum(self.settings.window_widths * w[c], self.settings.window_spacings * h)
-        # A fit from the second peak that came back to the first is no second opinion.
-        apart = np.hypot(*(f.theta[c, :2] - kept["theta"][:, :2]).T) > radius
-        rival = apart & ((after == OK) | (after == DRIFTING))
-        n_old, n_new = kept["n_eff"], f.n_eff[c]
-        new_wins = rival & (n_new >= SECOND_PEAK_RATIO * n_old)
-        tie = rival & ~new_wins & (n_old < SECOND_PEAK_RATIO * n_new)
-        restore = ~new_wins
-        self._restore(c, kept, restore)
-        self._seed_k[c[restore]] = -1
-        self._two_peaks[c[tie & (after == OK) & (before[cand] == OK)]] = True
-
     def update(self, log: PointLog) -> Predictions:
-        """Add one touch; the estimates of every sensor, fast and local (see ``_update``).
+        """Add one touch; the estimates of every sensor, fast and local (_live_update.py).
 
         ``result()`` gives the converged estimates (the batch solve).
         """
         with _quiet():
-            return self._update(log)
-
-    def _update(self, log: PointLog) -> Predictions:
-        """Add one touch and return the updated estimates of every sensor (fast, local).
-
-        The sensors near the new touch are re-fitted, warm-started; then the touch's own
-        gain and placement are estimated from those models, and the sensors whose view of
-        the touch that changes are re-fitted once more. Every time the session doubles,
-        everything is re-solved from scratch. ``result()`` gives the batch solve.
-        """
-        if not self._append(log):
-            return self._current()
-        self._dirty = True
-        k = self._k - 1
-        sign = self._detect_sign()
-        h = self.spacing()
-        f = self.fit
-        if (
-            sign != self._sign
-            or self._spacing_used is None
-            or abs(h - self._spacing_used) > 0.1 * self._spacing_used
-            or self._k >= self._next_full
-        ):
-            # Re-solve everything when the session has doubled (or its scale changed): the
-            # shared footprint and the touch nuisances settle, and the cost stays amortized.
-            self._next_full = max(2 * self._k, 8)
-            self.solve_all()
-            self._dirty = False
-            return self._current()
-        p = self._P[k]  # the touch's own placement offset is estimated below
-        w = pm.half_width(f.theta)
-        radius = (
-            np.maximum(self.settings.window_widths * w, self.settings.window_spacings * h) * 1.5
-        )
-        near = np.hypot(f.theta[:, pm.SX] - p[0], f.theta[:, pm.SY] - p[1]) < radius
-        # A new maximum of the map far from the current estimate that the model cannot
-        # explain: the peak may be elsewhere, so that sensor restarts from its map's top.
-        v_new = self._V[k] * self._sign
-        with np.errstate(invalid="ignore"):
-            before = (
-                np.nanmax(self._V[:k] * self._sign, axis=0) if k else np.full_like(v_new, -np.inf)
-            )
-        u_new = (v_new - f.floor) / f.amp
-        above_fit = u_new > f.theta[:, pm.B0] + f.theta[:, pm.AMP]
-        new_top = np.isfinite(v_new) & (v_new > before) & above_fit & ~near
-        # ... or a reading that rises above the sensor's last few readings (its floor
-        # here and now: the probe was elsewhere) by more than half the map's height where
-        # its model has no bump: a peak the model does not have. Without this, a fit that
-        # put its peak beyond the probes early on, from a drifting floor, was never
-        # re-fitted when the probe later passed over the sensor, whose readings stayed
-        # under the session's first ones (Patch B finger seed 7: S15 ended 98 mm off, ok).
-        # The model's own floor is no reference far from its window: it is a polynomial
-        # in time fitted to the touches near the sensor only.
-        if k:
-            recent = _nanmedian_cols(self._V[max(0, k - RECENT_TOUCHES) : k] * self._sign)
-            ridge = self._ridge_width(len(self.sensors), f.theta)
-            zero = np.zeros((1, len(self.sensors)))
-            shape = self.settings.shape
-            bump = (
-                pm.model(p[None], zero, f.theta, None, ridge, shape)[0] - pm.floor(zero, f.theta)[0]
-            )
-            rise = (v_new - recent) / f.amp - bump
-            new_top |= (
-                np.isfinite(rise)
-                & (rise > UNEXPLAINED_HEIGHT)
-                & (rise > UNEXPLAINED_SIGMAS * f.scale)
-                & ~near
-                & f.fitted
-            )
-        # One pass over both: a restarted sensor begins at its map's top (a good start) and
-        # the following updates refine it, so a few iterations suffice here too.
-        todo = np.flatnonzero(near | new_top)
-        # The last batch solve's settling verdict judged maps these sensors have outgrown.
-        self._moved_by_settling[todo] = False
-        first = None
-        if todo.size:
-            first = self._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
-        # The new touch's own gain and placement come from the models it has just updated
-        # (judged by models that had not seen it, a first touch near a sensor would be
-        # "explained" by a wrong offset), then those sensors take one more short pass.
-        self._touch_nuisances(np.array([k]))
-        cand = todo
-        # Only where the estimated gain and placement change what the touch says (a robot's
-        # placement is good to ~0.05 mm: usually nowhere) is the second pass worth its cost.
-        th = f.theta[cand]
-        rho = self._ridge_width(cand.size, th)
-        zero = np.zeros((1, cand.size))
-        shape = self.settings.shape
-        m0 = pm.model(self._P[k : k + 1], zero, th, None, rho, shape)[0]
-        m1 = pm.model(
-            self._P[k : k + 1] + self._dxy[k], zero, th, np.exp(self._lg[k : k + 1]), rho, shape
-        )[0]
-        pick = np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)
-        redo = cand[pick]
-        if redo.size:
-            # The same maps as the first pass, unless the touch was just judged missed
-            # (which changes what is valid); per-sensor columns, so a subset is a slice.
-            inputs = None
-            if first is not None and not self._missed[k]:
-                sub = np.flatnonzero(pick)
-                inputs = tuple(a[sub] if a.ndim == 1 else a[:, sub] for a in first)
-            self._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS, inputs=inputs)
-        return self._current()
+            return update(self, log)
 
     def _current(self) -> Predictions:
         return _predictions(self)
@@ -1390,57 +1014,6 @@ def _finite_or_none(a, n: int, name: str) -> np.ndarray | None:
     if a.size != n:
         raise InputError(f"{NAME}: {name} has {a.size} values for {n} sensors")
     return np.where(np.isfinite(a), a, np.nan)
-
-
-def _nanmedian_cols(A: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(A, axis=0)`` (NaN for an all-NaN column, without a warning).
-
-    numpy's nanmedian goes through masked arrays for small inputs, which made it one of
-    the largest costs of a live update.
-    """
-    if A.shape[0] == 0:
-        return np.full(A.shape[1], np.nan)
-    B = np.sort(A, axis=0)  # NaN sorts last
-    n = (~np.isnan(B)).sum(axis=0)
-    cols = np.arange(A.shape[1])
-    # The two middle ranks of the n finite values (the same one when n is odd).
-    lo = B[np.maximum((n - 1) // 2, 0), cols]
-    hi = B[n // 2 - (n == 0), cols]
-    return np.where(n > 0, 0.5 * (lo + hi), np.nan)
-
-
-def _floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Each sensor's slow floor over the session: low quantile of consecutive touches.
-
-    Touches are binned in arrival order (bins of ~K/8, at least 10); the 20th percentile of a
-    bin ignores the few touches near the sensor, and bins are joined by straight lines.
-    """
-    K, S = U.shape
-    m = max(10, K // 8)
-    if 2 * m > K:
-        q = np.percentile(np.where(valid, U, np.inf), 20, axis=0, method="lower")
-        return np.broadcast_to(np.where(np.isfinite(q), q, 0.0), (K, S))
-    edges = np.linspace(0, K, K // m + 1).astype(int)
-    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
-    # Invalid cells sort last (+inf), so a low quantile ignores them while they are few.
-    Un = np.where(valid, U, np.inf)
-    # All bins at once: pad each to the longest with +inf (sorts last), sort within bins,
-    # and take each bin's own "lower" 20th-percentile rank.
-    sizes = np.diff(edges)
-    nb, mx = sizes.size, int(sizes.max())
-    pos = np.arange(K) - np.repeat(edges[:-1], sizes)
-    padded = np.full((nb, mx, S), np.inf)
-    padded[np.repeat(np.arange(nb), sizes), pos] = Un
-    padded.sort(axis=1)
-    rank = np.floor(0.2 * (sizes - 1)).astype(int)
-    q = padded[np.arange(nb), rank]
-    # Bins without any valid value borrow the sensor's overall level.
-    overall = _nanmedian_cols(q) if np.isfinite(q).any() else np.zeros(S)
-    q = np.where(np.isfinite(q), q, np.where(np.isfinite(overall), overall, 0.0)[None, :])
-    k = np.arange(K)
-    j = np.clip(np.searchsorted(centres, k) - 1, 0, len(centres) - 2)
-    t = np.clip((k - centres[j]) / (centres[j + 1] - centres[j]), 0.0, 1.0)
-    return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
 
 
 def _predictions(loc: Localizer) -> Predictions:

@@ -1,0 +1,139 @@
+"""Sensors whose offset was still settling under their own touches: judged in millimetres,
+and re-fitted from the touches after the probe came back.
+
+Why a module of its own: the board's settling (_settling.py) is read from the sensors far
+from each touch, in peak heights. Here the batch solve asks what it costs each fit: taking
+the settling out of a sensor's readings and fitting again says whether the fit moved by
+more than its error bar (a `drifting` reason), and a `drifting` sensor that the probe left
+and came back to is fitted again from its later touches alone, where the floor was steady.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from varskin.localization import _peak_model as pm
+from varskin.localization._maps import nanmedian_cols
+from varskin.localization._settling import board_settling
+from varskin.localization._statuses import drift_measures, drifting_during_own_touches
+from varskin.predictions import OK, R95_PER_AXIS_SD
+
+if TYPE_CHECKING:
+    from varskin.localization.peakfit import Localizer
+
+# A `drifting` sensor probed again after the probe was away for more than this many
+# touches' time is re-fitted from the touches since it came back (refit_after_settling).
+REPROBE_AWAY_TOUCHES = 4
+# The board's settling, taken out of a sensor's readings (moved_by_settling), must move its
+# fit by more than this many of its first-order sigmas and this many mm for `drifting`;
+# only sensors with more than SETTLING_CHECK_FRACTION of their peak unfollowed are re-fitted
+# to see. Session 38 tried it at 2 sigma and no floor in mm: on Patch B robot it flagged 24
+# of 158 re-fitted sensors, 3 of them beyond 2 sigma. With the floor, results are identical
+# on Patch A and B, robot and finger, seeds 300-329, patch given (and Patch B finger
+# without); on board seeds 0-7 (robot 50 x 20, no patch) seed 1's S1 (2.20 mm off at 5.5
+# sigma) is flagged and re-placed from the scan's next pass, 0.46 mm off; the stress table
+# locates 10 fewer of 15,214 (docs/benchmarks.md, "Settling measured in millimetres").
+SETTLING_MOVE_SIGMAS = 3.0
+SETTLING_MOVE_MM = 1.0
+SETTLING_CHECK_FRACTION = 0.05
+
+
+def settling_of(loc: Localizer) -> tuple[np.ndarray, np.ndarray] | None:
+    """The board's settling from the fits as they stand (_settling.py); None where the
+    values are not relative to a measured rest (no baseline: no settling to speak of)."""
+    if loc.rest is None:
+        return None
+    K, f = loc._k, loc.fit
+    V = np.where(loc._missed[:K, None], np.nan, loc._V[:K] * loc._sign)
+    w = pm.half_width(f.theta)
+    usable = f.has_model()
+    with np.errstate(all="ignore"):
+        noise = nanmedian_cols(loc._noise[:K])
+    if loc.rest_sd is not None:  # logs without sample sds: the baseline's
+        noise = np.where(np.isfinite(noise), noise, loc.rest_sd)
+    P = loc._P[:K] + loc._dxy[:K]
+    return board_settling(V, P, loc._tau(), f.theta[:, :2], w, usable, noise)
+
+
+def moved_by_settling(loc: Localizer, inside: np.ndarray) -> np.ndarray:
+    """(N,) bool: the sensors whose fit, warm re-fitted with the board's settling (as
+    ``settling_of`` read it) taken out of their readings, moves by more than
+    SETTLING_MOVE_SIGMAS of its own first-order sigma and SETTLING_MOVE_MM; ``inside``
+    the touches in each fit's window (``window_members``).
+
+    The settling the fit did not follow is judged in peak heights (``unfollowed``), and
+    a small fraction can still cost millimetres: on a full board's robot grid (6 x 10
+    mm) the corner sensor probed first was 2.2 mm off at 5.5 sigma with only 0.13 of
+    its peak unfollowed. The re-fit says it in millimetres. It judges; it does not
+    correct: on a 30-sensor patch the settling is read from few far sensors, and there
+    a re-fit that moved a sensor 2.4 mm took it to 5.8 mm off (docs/benchmarks.md,
+    "Settling measured in millimetres").
+    """
+    n = len(loc.sensors)
+    out = np.zeros(n, bool)
+    if loc._settling is None:
+        return out
+    K, f = loc._k, loc.fit
+    course, level = loc._settling
+    with np.errstate(all="ignore"):
+        _, unfollowed = drift_measures(loc, inside)
+    cols = np.flatnonzero(f.has_model() & (unfollowed > SETTLING_CHECK_FRACTION))
+    if cols.size == 0:
+        return out
+    settled = np.nan_to_num(level[cols][None, :] * course[:K, None])  # peak-up units
+    kept = f.copy_of(cols)
+    before = f.theta[cols, :2].copy()
+    sd = np.sqrt(np.maximum(np.trace(f.cov_xy[cols], axis1=1, axis2=2) / 2.0, 0.0))
+    V = loc._V[:K, cols].copy()
+    try:
+        loc._V[:K, cols] = V - settled * loc._sign
+        loc._refit_warm(cols)
+        moved = np.hypot(*(f.theta[cols, :2] - before).T)
+    finally:
+        loc._V[:K, cols] = V
+        f.put(kept, cols)
+    sigma = sd * R95_PER_AXIS_SD / 2.0
+    out[cols] = (moved > SETTLING_MOVE_SIGMAS * sigma) & (moved > SETTLING_MOVE_MM)
+    return out
+
+
+def refit_after_settling(loc: Localizer, inside: np.ndarray) -> None:
+    """Re-fit each `drifting` sensor from the touches since the probe came back to it
+    (``inside``: the touches in each fit's window, ``window_members``).
+
+    A sensor probed first while its offset still settled is `drifting` however often it
+    is probed again: its first touches stay in its window, and the slow floor model
+    cannot follow them. Its later touches, once re-probed, see a steady floor and place
+    it alone. The re-fit is kept only where it passes every check (`drifting` included,
+    judged on the touches it used); otherwise the sensor keeps its fit and its status.
+    """
+    f = loc.fit
+    with np.errstate(all="ignore"):
+        drifting = drifting_during_own_touches(loc, inside)
+    cols = np.flatnonzero(f.fitted & drifting)
+    if cols.size == 0:
+        return
+    tau = loc._tau()
+    inside = inside[:, cols]
+    # The probe must have left and come back: a pass that merely went on over the
+    # sensor (a serpentine grid's next columns) is the same settling, seen from one side.
+    away = REPROBE_AWAY_TOUCHES * float(np.median(np.diff(tau))) if tau.size > 1 else 0.0
+    for j, c in enumerate(cols):
+        t = np.sort(tau[inside[:, j]])
+        back = np.flatnonzero(np.diff(t) > away)
+        if away > 0 and back.size:
+            loc._t_from[c] = t[back[0] + 1]
+    cols = cols[np.isfinite(loc._t_from[cols])]
+    if cols.size == 0:
+        return
+    kept = loc._refit(cols)
+    # The settling check judged the touches the re-fit no longer uses.
+    moved = loc._moved_by_settling[cols].copy()
+    loc._moved_by_settling[cols] = False
+    failed = loc._statuses()[cols] != OK
+    if failed.any():
+        loc._restore(cols, kept, failed)
+        loc._t_from[cols[failed]] = -np.inf
+        loc._moved_by_settling[cols[failed]] = moved[failed]
