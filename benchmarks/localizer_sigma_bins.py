@@ -1,0 +1,93 @@
+"""Does a sensor's sigma rank its error? Coverage and RMS error per band of sigma.
+
+Why it exists: issue 3 asks that every `ok` sensor's sigma_mm "means something". The
+coverage benchmarks pool all sensors of a scene type, and a pooled 0.95 can hide sigmas
+that are too small on some sensors and too large on others, as long as the two balance.
+This one sorts the `ok` sensors by their sigma into six bands (quintiles, the top one split
+at the 95th percentile), separately for the outermost TX wires (whose maps are one-sided at
+the probes' hull) and the rest, and prints per band the RMS error beside what calibrated
+sigmas of that band would give (sqrt(mean(2 s^2)), s = sigma / 1.22 per axis), the 2-sigma
+coverage and the largest error. It also counts the sensors above 2 mm against the number
+the sigmas predict (the sum over sensors of P(|e| > 2 mm) for a 2-D Gaussian error).
+
+Run as ``python benchmarks/localizer_sigma_bins.py [--patch patch_b] [--probe finger]
+[--seeds 360-559] [--jobs 2]`` (Patch B finger, seeds 360-559, cell centres of the 20 x 5
+grid, with and without the patch: about two minutes on the 2-core VM).
+"""
+
+from __future__ import annotations
+
+import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
+
+# isort: split
+import argparse
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+from localizer_live import seed_range
+
+from varskin.localization import localize
+from varskin.patch import builtin_patch
+from varskin.predictions import OK, R95_PER_AXIS_SD
+from varskin.simulate import simulate_session, uniform_grid
+
+
+def one_scene(job: tuple[str, str, int, bool]) -> list[tuple[float, float, bool]]:
+    """(error mm, sigma mm, on an outermost TX wire) of every `ok` sensor of one scene."""
+    pname, probe, seed, prior = job
+    p = builtin_patch(pname)
+    s = simulate_session(p, uniform_grid(p, 20, 5), probe, seed)
+    pr = localize(s.point_logs(), **({"patch": p} if prior else {}))
+    err = np.linalg.norm(pr.xy() - s.truth, axis=1)
+    last = len(p.tx_x_mm) - 1
+    return [
+        (float(e), est.sigma_mm, sensor.tx in (0, last))
+        for est, e, sensor in zip(pr, err, p.sensors, strict=True)
+        if est.status == OK
+    ]
+
+
+def bands(sigma: np.ndarray) -> list[tuple[float, float]]:
+    """Six bands of sigma: quintiles, the top one split at the 95th percentile."""
+    q = np.percentile(sigma, [0, 20, 40, 60, 80, 95, 100])
+    return list(zip(q[:-1], q[1:], strict=True))
+
+
+def report(label: str, e: np.ndarray, sigma: np.ndarray, n_scenes: int) -> None:
+    s = sigma / (R95_PER_AXIS_SD / 2.0)  # per-axis sd the sigma stands for
+    p_over = np.exp(-4.0 / (2.0 * s * s))  # P(|e| > 2 mm), 2-D Gaussian
+    print(
+        f"{label}: {e.size} ok sensors of {n_scenes} scenes; 2-sigma coverage "
+        f"{np.mean(e <= 2 * sigma):.3f}; above 2 mm {int(np.sum(e > 2))}, the sigmas "
+        f"predict {p_over.sum():.1f}"
+    )
+    last = len(bands(sigma)) - 1
+    for i, (lo, hi) in enumerate(bands(sigma)):
+        b = (sigma >= lo) & ((sigma < hi) | (i == last))
+        calibrated = np.sqrt(np.mean(2.0 * s[b] ** 2))
+        print(
+            f"  sigma {lo:.2f}-{hi:.2f} mm, {b.sum():4d} sensors: RMS error "
+            f"{np.sqrt(np.mean(e[b] ** 2)):.2f} mm (calibrated {calibrated:.2f}), "
+            f"2-sigma coverage {np.mean(e[b] <= 2 * sigma[b]):.3f}, max {e[b].max():.2f} mm"
+        )
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--patch", default="patch_b", help="built-in patch (default patch_b)")
+    ap.add_argument("--probe", default="finger", help="robot or finger (default finger)")
+    ap.add_argument("--seeds", type=seed_range, default=range(360, 560), help="default 360-559")
+    ap.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
+    a = ap.parse_args(argv)
+    with ProcessPoolExecutor(a.jobs) as ex:
+        for prior in (True, False):
+            jobs = [(a.patch, a.probe, seed, prior) for seed in a.seeds]
+            rows = np.array([r for scene in ex.map(one_scene, jobs) for r in scene])
+            e, sigma, edge = rows[:, 0], rows[:, 1], rows[:, 2].astype(bool)
+            given = "patch given" if prior else "no patch"
+            for where, m in (("outermost TX wires", edge), ("other wires", ~edge)):
+                report(f"{a.patch} {a.probe}, {given}, {where}", e[m], sigma[m], len(a.seeds))
+
+
+if __name__ == "__main__":
+    main()
