@@ -61,9 +61,9 @@ def report(label: str, e: np.ndarray, sigma: np.ndarray, n_scenes: int) -> None:
         f"{np.mean(e <= 2 * sigma):.3f}; above 2 mm {int(np.sum(e > 2))}, the sigmas "
         f"predict {p_over.sum():.1f}"
     )
-    last = len(bands(sigma)) - 1
-    for i, (lo, hi) in enumerate(bands(sigma)):
-        b = (sigma >= lo) & ((sigma < hi) | (i == last))
+    edges = bands(sigma)
+    for i, (lo, hi) in enumerate(edges):
+        b = (sigma >= lo) & ((sigma < hi) | (i == len(edges) - 1))
         calibrated = np.sqrt(np.mean(2.0 * s[b] ** 2))
         print(
             f"  sigma {lo:.2f}-{hi:.2f} mm, {b.sum():4d} sensors: RMS error "
@@ -74,8 +74,10 @@ def report(label: str, e: np.ndarray, sigma: np.ndarray, n_scenes: int) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--patch", default="patch_b", help="built-in patch (default patch_b)")
-    ap.add_argument("--probe", default="finger", help="robot or finger (default finger)")
+    ap.add_argument(
+        "--patch", choices=("patch_a", "patch_b"), default="patch_b", help="default patch_b"
+    )
+    ap.add_argument("--probe", choices=("robot", "finger"), default="finger", help="default finger")
     ap.add_argument("--seeds", type=seed_range, default=range(360, 560), help="default 360-559")
     ap.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     a = ap.parse_args(argv)
