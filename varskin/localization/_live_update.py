@@ -52,6 +52,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     sign = loc._detect_sign()
     h = loc.spacing()
     f = loc.fit
+    shape = loc.settings.shape
     if (
         sign != loc._sign
         or loc._spacing_used is None
@@ -88,7 +89,6 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
         recent = nanmedian_cols(loc._V[max(0, k - RECENT_TOUCHES) : k] * loc._sign)
         ridge = loc._ridge_width(len(loc.sensors), f.theta)
         zero = np.zeros((1, len(loc.sensors)))
-        shape = loc.settings.shape
         bump = pm.model(p[None], zero, f.theta, None, ridge, shape)[0] - pm.floor(zero, f.theta)[0]
         rise = (v_new - recent) / f.amp - bump
         new_top |= (
@@ -116,7 +116,6 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     th = f.theta[cand]
     rho = loc._ridge_width(cand.size, th)
     zero = np.zeros((1, cand.size))
-    shape = loc.settings.shape
     m0 = pm.model(loc._P[k : k + 1], zero, th, None, rho, shape)[0]
     m1 = pm.model(
         loc._P[k : k + 1] + loc._dxy[k], zero, th, np.exp(loc._lg[k : k + 1]), rho, shape
