@@ -156,6 +156,21 @@ def test_the_patch_chooses_its_response_shape(shape, patch_a):
         assert coverage > float(np.mean(inside["lorentzian"]))
 
 
+@pytest.mark.parametrize("shape", ["gaussian", "exponential"])
+def test_a_finger_scene_without_a_patch_chooses_its_shape(shape, patch_a):
+    """Without a patch a settled finger solve takes the joint rounds, and the shape screen
+    comes before them, with four rounds per shape: screened after the rounds with two (as
+    before), seeds 301 and 303 kept the Lorentzian here with the exponential and 303 with
+    the Gaussian; screened before them with two, seed 301 with the exponential."""
+    for seed in (300, 301, 302, 303):
+        logs = session(patch_a, "finger", seed, shape=shape).point_logs()
+        loc = peakfit.solved(logs)
+        assert loc._settled and loc._joint_kept, seed  # the path this guards
+        pred = loc.result()
+        assert pred.params["response_shape"] == shape, (seed, pred.params)
+        assert pred.params["response_shape_z"] < -_shape_screen.SHAPE_Z, seed
+
+
 @pytest.mark.parametrize("shape", ["lorentzian", "gaussian"])
 def test_a_larger_patch_screens_shapes_on_a_block_and_leaves_no_trace(shape, patch_b, monkeypatch):
     """A patch with more sensors than SHAPE_SCREEN_SENSORS screens the shapes on that many

@@ -25,7 +25,14 @@ if TYPE_CHECKING:
 # with at least SHAPE_MIN_SENSORS sensors to test on (favoured_shape).
 SHAPE_Z = 3.0
 SHAPE_MIN_SENSORS = 8
-SHAPE_SCREEN_ROUNDS = 2
+# Each shape's short solve takes SHAPE_SCREEN_ROUNDS rounds of the touches' nuisances and the
+# sensors. With two, a finger's offsets, settled for the current shape, had not moved far
+# enough for another: exponential Patch A finger scenes without a patch kept the Lorentzian
+# on 2 of seeds 300-305 (z -2.5 and -2.2; RMS 0.78-0.79 mm, against 0.32 and 0.37 mm at the
+# exponential). With four every one of those scenes, and of the same seeds on Patch B and
+# with the Gaussian, chose its own shape, and no Lorentzian scene left it
+# (docs/benchmarks.md, "The shape screen before the joint rounds").
+SHAPE_SCREEN_ROUNDS = 4
 # A larger patch screens on the SHAPE_SCREEN_SENSORS sensors nearest its middle, the touches
 # their windows hold, and no others: the screen's cost then stays that of a 64-sensor patch
 # (the full board's batch solve took 2.1-2.3 s with every sensor screened, against its 2 s

@@ -845,12 +845,7 @@ class Localizer:
         self._shape_z = None
         if calibrate:
             self.settings = replace(self.settings, shape=self._fixed_shape or pm.SHAPES[0])
-        self._solve_once()
-        if calibrate and self._fixed_shape is None and self._k >= 3:
-            shape, self._shape_z = favoured_shape(self)
-            if shape != self.settings.shape:
-                self.settings = replace(self.settings, shape=shape)
-                self._solve_once()
+        self._solve_once(screen=calibrate and self._fixed_shape is None)
         # Not for `joint`: there the check narrowed the robot's error bars to 2-sigma
         # coverage 0.88-0.92 (docs/localizer.md, "Two batch solvers").
         if (
@@ -862,8 +857,38 @@ class Localizer:
             self._sigma_scale = sigma_scale(self)
         self._dirty = False
 
-    def _solve_once(self) -> None:
-        """The batch solve at the current response shape, from a cold start."""
+    def _solve_once(self, screen: bool = False) -> None:
+        """The batch solve from a cold start, at the current response shape or, with
+        ``screen``, at the one the maps favour.
+
+        The screen comes before the joint rounds: from their end the current shape's
+        touch offsets fit it better than a short solve can re-fit them for another shape,
+        and without a patch the exponential finger scenes of benchmarks/localizer_stress.py
+        kept the Lorentzian in 6 of 10 (docs/benchmarks.md, "The shape screen before the
+        joint rounds").
+        """
+        self._fit_and_settle()
+        if screen and self._k >= 3:
+            shape, self._shape_z = favoured_shape(self)
+            if shape != self.settings.shape:
+                self.settings = replace(self.settings, shape=shape)
+                self._fit_and_settle()
+        if self._k < 3:
+            return
+        if self._settled:
+            self._try_joint_settle()
+        second_peaks(self)
+        self._settling = settling_of(self)
+        # Both judge the fits as they stand here (the settling check puts its re-fit back).
+        inside = window_members(
+            self, self.fit.theta[:, :2], pm.half_width(self.fit.theta), self.spacing()
+        )
+        self._moved_by_settling = moved_by_settling(self, inside)
+        refit_after_settling(self, inside)
+
+    def _fit_and_settle(self) -> None:
+        """Every sensor fitted from a cold start, then the alternation's rounds, and the
+        settling rounds if the touches land finger-like."""
         K = self._k
         self._settled = False
         self._joint_ratio, self._joint_kept = None, False
@@ -896,15 +921,6 @@ class Localizer:
         ):
             self._polish(settle, SETTLE_RELAX)
             self._settled = True
-            self._try_joint_settle()
-        second_peaks(self)
-        self._settling = settling_of(self)
-        # Both judge the fits as they stand here (the settling check puts its re-fit back).
-        inside = window_members(
-            self, self.fit.theta[:, :2], pm.half_width(self.fit.theta), self.spacing()
-        )
-        self._moved_by_settling = moved_by_settling(self, inside)
-        refit_after_settling(self, inside)
 
     def _try_joint_settle(self) -> None:
         """From the settled alternation, joint rounds at its placement scale; kept only if
