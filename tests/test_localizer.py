@@ -159,9 +159,10 @@ def test_the_patch_chooses_its_response_shape(shape, patch_a):
 @pytest.mark.parametrize("shape", ["gaussian", "exponential"])
 def test_a_finger_scene_without_a_patch_chooses_its_shape(shape, patch_a):
     """Without a patch a settled finger solve takes the joint rounds, and the shape screen
-    comes before them, with four rounds per shape: screened after the rounds with two (as
-    before), seeds 301 and 303 kept the Lorentzian here with the exponential and 303 with
-    the Gaussian; screened before them with two, seed 301 with the exponential."""
+    comes before them, with four rounds per shape after settling: screened after the joint
+    rounds with two (as before), seeds 301 and 303 kept the Lorentzian here with the
+    exponential and 303 with the Gaussian; screened before them with two, seed 301 with
+    the exponential."""
     for seed in (300, 301, 302, 303):
         logs = session(patch_a, "finger", seed, shape=shape).point_logs()
         loc = peakfit.solved(logs)

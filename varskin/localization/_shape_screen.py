@@ -26,13 +26,17 @@ if TYPE_CHECKING:
 SHAPE_Z = 3.0
 SHAPE_MIN_SENSORS = 8
 # Each shape's short solve takes SHAPE_SCREEN_ROUNDS rounds of the touches' nuisances and the
-# sensors. With two, a finger's offsets, settled for the current shape, had not moved far
-# enough for another: exponential Patch A finger scenes without a patch kept the Lorentzian
-# on 2 of seeds 300-305 (z -2.5 and -2.2; RMS 0.78-0.79 mm, against 0.32 and 0.37 mm at the
+# sensors, or SETTLED_SCREEN_ROUNDS after a finger's settling rounds (peakfit.SETTLE_ROUNDS).
+# With two, a finger's offsets, settled for the current shape, had not moved far enough for
+# another: exponential Patch A finger scenes without a patch kept the Lorentzian on 2 of
+# seeds 300-305 (z -2.5 and -2.2; RMS 0.78-0.79 mm, against 0.32 and 0.37 mm at the
 # exponential). With four every one of those scenes, and of the same seeds on Patch B and
-# with the Gaussian, chose its own shape, and no Lorentzian scene left it
-# (docs/benchmarks.md, "The shape screen before the joint rounds").
-SHAPE_SCREEN_ROUNDS = 4
+# with the Gaussian, chose its own shape, and no Lorentzian scene left it. A robot's
+# offsets are a tenth as large: four rounds there cost its batch solve a fifth more time
+# for one more exponential scene of 20 in the stress table (docs/benchmarks.md, "The shape
+# screen before the joint rounds").
+SHAPE_SCREEN_ROUNDS = 2
+SETTLED_SCREEN_ROUNDS = 4
 # A larger patch screens on the SHAPE_SCREEN_SENSORS sensors nearest its middle, the touches
 # their windows hold, and no others: the screen's cost then stays that of a 64-sensor patch
 # (the full board's batch solve took 2.1-2.3 s with every sensor screened, against its 2 s
@@ -44,8 +48,9 @@ def favoured_shape(loc: Localizer) -> tuple[str, float | None]:
     """The response shape the maps favour, and its paired z (None: not tested).
 
     Every shape gets a short solve from this solve's state: the sensors fitted
-    again, warm-started, then SHAPE_SCREEN_ROUNDS rounds of the touches' nuisances and
-    the sensors (those absorb part of a shape's misfit, so the shape must have its own).
+    again, warm-started, then SHAPE_SCREEN_ROUNDS (settled: SETTLED_SCREEN_ROUNDS) rounds
+    of the touches' nuisances and the sensors (those absorb part of a shape's misfit, so
+    the shape must have its own).
     The current shape gets the same short solve: the full solve's own residual scale
     is no reference (on a scattered finger plan a short solve from its end, at its own
     shape, lowered it by 0.47 in log on average, and the comparison with it chose a
@@ -62,6 +67,7 @@ def favoured_shape(loc: Localizer) -> tuple[str, float | None]:
     if cols.size < SHAPE_MIN_SENSORS:
         return current, None
     kept = loc._touch_and_fit_state()
+    rounds = SETTLED_SCREEN_ROUNDS if loc._settled else SHAPE_SCREEN_ROUNDS
     block = screened(loc, cols)
     sub = block.size < cols.size
     hidden = np.setdiff1d(np.arange(len(loc.sensors)), block) if sub else block[:0]
@@ -75,7 +81,7 @@ def favoured_shape(loc: Localizer) -> tuple[str, float | None]:
         # wrong shape's misfit: each shape gets its own, as a short solve would.
         loc.settings = replace(loc.settings, shape=shape)
         loc._refit_warm(block)
-        loc._polish(SHAPE_SCREEN_ROUNDS, cols=polished)
+        loc._polish(rounds, cols=polished)
         scales[shape] = np.log(np.maximum(f.scale[block], 1e-300))
         loc._set_touch_and_fit_state(kept)
     best, best_z, best_gain = current, None, 0.0
