@@ -32,9 +32,9 @@ SHAPE_MIN_SENSORS = 8
 # seeds 300-305 (z -2.5 and -2.2; RMS 0.78-0.79 mm, against 0.32 and 0.37 mm at the
 # exponential). With four every one of those scenes, and of the same seeds on Patch B and
 # with the Gaussian, chose its own shape, and no Lorentzian scene left it. A robot's
-# offsets are a tenth as large: four rounds there cost its batch solve a fifth more time
-# for one more exponential scene of 20 in the stress table (docs/benchmarks.md, "The shape
-# screen before the joint rounds").
+# offsets are a tenth as large: four rounds there cost its batch solve 16 % more time (Patch
+# B, localizer_scale.py) for one more exponential robot scene of 20 in each stress table
+# (docs/benchmarks.md, "The shape screen before the joint rounds").
 SHAPE_SCREEN_ROUNDS = 2
 SETTLED_SCREEN_ROUNDS = 4
 # A larger patch screens on the SHAPE_SCREEN_SENSORS sensors nearest its middle, the touches
