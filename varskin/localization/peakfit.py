@@ -857,7 +857,7 @@ class Localizer:
             self._sigma_scale = sigma_scale(self)
         self._dirty = False
 
-    def _solve_once(self, screen: bool = False) -> None:
+    def _solve_once(self, screen: bool) -> None:
         """The batch solve from a cold start, at the current response shape or, with
         ``screen``, at the one the maps favour.
 
