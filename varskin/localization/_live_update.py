@@ -110,18 +110,17 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     # (judged by models that had not seen it, a first touch near a sensor would be
     # "explained" by a wrong offset), then those sensors take one more short pass.
     loc._touch_nuisances(np.array([k]))
-    cand = todo
     # Only where the estimated gain and placement change what the touch says (a robot's
     # placement is good to ~0.05 mm: usually nowhere) is the second pass worth its cost.
-    th = f.theta[cand]
-    rho = loc._ridge_width(cand.size, th)
-    zero = np.zeros((1, cand.size))
+    th = f.theta[todo]
+    rho = loc._ridge_width(todo.size, th)
+    zero = np.zeros((1, todo.size))
     m0 = pm.model(loc._P[k : k + 1], zero, th, None, rho, shape)[0]
     m1 = pm.model(
         loc._P[k : k + 1] + loc._dxy[k], zero, th, np.exp(loc._lg[k : k + 1]), rho, shape
     )[0]
-    pick = np.abs(m1 - m0) > np.maximum(f.scale[cand], 1e-12)
-    redo = cand[pick]
+    pick = np.abs(m1 - m0) > np.maximum(f.scale[todo], 1e-12)
+    redo = todo[pick]
     if redo.size:
         # The same maps as the first pass, unless the touch was just judged missed
         # (which changes what is valid); per-sensor columns, so a subset is a slice.

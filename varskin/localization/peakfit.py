@@ -868,13 +868,13 @@ class Localizer:
         joint rounds").
         """
         self._fit_and_settle()
-        if screen and self._k >= 3:
+        if self._k < 3:
+            return
+        if screen:
             shape, self._shape_z = favoured_shape(self)
             if shape != self.settings.shape:
                 self.settings = replace(self.settings, shape=shape)
                 self._fit_and_settle()
-        if self._k < 3:
-            return
         if self._settled:
             self._try_joint_settle()
         second_peaks(self)
