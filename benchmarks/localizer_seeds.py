@@ -12,7 +12,7 @@ to the far one) instead of the cell centres the targets were set on: its outer c
 0.8 mm nearer the patch's ends.
 ``--settle-rounds 40`` lets finger-like solves settle for 40 rounds instead of 12
 (``localizer_settle.py`` times that); ``--joint-settle-rounds N`` sets the joint rounds a
-settled solve then takes (default 8 without a patch, none with it).
+settled solve then takes (default 8, but none with a patch whose design pins both axes).
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
@@ -41,8 +41,8 @@ def add_settle_rounds(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--joint-settle-rounds",
         type=int,
-        help="peakfit's joint_settle_rounds after settling (default the localizer's: 8 "
-        "without a patch's design prior, none with it)",
+        help="peakfit's joint_settle_rounds after settling (default the localizer's: 8, "
+        "but none where a patch's design prior pins both axes)",
     )
 
 

@@ -14,6 +14,7 @@ import pytest
 from varskin.errors import InputError
 from varskin.localization import (
     DEFAULT_METHOD,
+    _error_bar,
     _hull,
     _maps,
     _shape_screen,
@@ -78,6 +79,18 @@ def test_finger_probed_grid_beats_the_paper_by_40_percent(patch_name, request):
         theirs = errors(paper.localize(logs, ppcm=32), s.truth)
         assert rms(ours) <= 0.6 * rms(theirs), (seed, rms(ours), rms(theirs))
         assert np.nanmax(ours) <= 2.0 + 1e-9 or np.nanmax(ours) < np.nanmax(theirs)
+
+
+def test_joint_rounds_run_where_the_design_leaves_an_axis_unpinned(patch_a, patch_b):
+    """Patch A's two RX wires are too few for a design map, so its settled finger solve takes
+    the joint rounds even with the patch, and the error-bar check may then shrink sigma
+    below the settled floor; Patch B's design pins both axes, so it takes none."""
+    a = localize(session(patch_a, "finger", 3).point_logs(), patch=patch_a)
+    assert a.params["joint_settle_kept"] is True
+    assert _error_bar.JOINT_KEPT_FLOOR <= a.params["sigma_scale"] < _error_bar.SETTLED_FLOOR
+    b = localize(session(patch_b, "finger", 3).point_logs(), patch=patch_b)
+    assert "joint_settle_ratio" not in b.params
+    assert b.params["sigma_scale"] >= _error_bar.SETTLED_FLOOR
 
 
 def test_without_the_layout_prior_it_still_beats_the_paper(patch_b):

@@ -82,9 +82,9 @@ def register(subparsers) -> None:
         type=int,
         metavar="N",
         help="peakfit: joint rounds a settled solve then takes, kept only while the touches' "
-        "offsets fit their placement scatter (0: none); default 8 without --patch, none "
-        "with it, where the design prior pins the edge sensors they are for "
-        "(docs/localizer.md)",
+        "offsets fit their placement scatter (0: none); default 8, but none with a --patch "
+        "whose design prior pins both axes, where it holds the edge sensors they are for "
+        "(a family of fewer than 3 wires has no design map; docs/localizer.md)",
     )
     p.add_argument(
         "--response-shape",

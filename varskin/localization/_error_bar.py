@@ -66,6 +66,12 @@ SCALE_RANGE = (0.8, 3.0)
 # variant of benchmarks/localizer_stress.py the finger rows cover 0.88-0.98, the Gaussian
 # and exponential shapes included (docs/benchmarks.md, "Settling finger solves").
 SETTLED_FLOOR = 0.6
+# ... and a settled solve that kept its joint rounds (peakfit.JOINT_SETTLE_ROUNDS) is nearer
+# the model's optimum still: its check asks for 0.49-0.68 (Patch A finger scenes with
+# another response shape, tests/test_localizer.py MISMATCH), and at the 0.6 floor the stress
+# variants solved without a patch covered up to 0.987 (10 of 68 rows outside 0.90-0.98); at
+# 0.5, 2 rows (docs/benchmarks.md, "Joint rounds where the design pins one axis only").
+JOINT_KEPT_FLOOR = 0.5
 
 
 def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localizer, np.ndarray]:
@@ -148,5 +154,7 @@ def sigma_scale(loc: Localizer) -> float:
     if z2_all.size < MIN_SAMPLES:
         return 1.0
     factor = math.sqrt(float(np.mean(z2_all)) / CALIBRATED_Z2)
-    low = SETTLED_FLOOR if loc._settled else SCALE_RANGE[0]
+    low = SCALE_RANGE[0]
+    if loc._settled:
+        low = JOINT_KEPT_FLOOR if loc._joint_kept else SETTLED_FLOOR
     return float(np.clip(factor, low, SCALE_RANGE[1]))

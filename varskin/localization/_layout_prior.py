@@ -26,6 +26,9 @@ import numpy as np
 # How far (in sds of the prediction) a crossing may lie from the line its wire-mates draw
 # before its variance takes in that distance.
 OFF_LINE_Z = 4.0
+# The fewest wires of a family (TX or RX) that get a map from design to fitted coordinates:
+# with fewer, that axis has no design prior.
+DESIGN_MAP_MIN_WIRES = 3
 
 
 def shrink_to_wires(
@@ -289,7 +292,7 @@ def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
     wire_family = family[first]
     fams = np.unique(wire_family)
     rows = (wire_family[None, :] == fams[:, None]) & keep[None, :]  # (F, G)
-    rows &= (rows.sum(axis=1) >= 3)[:, None]
+    rows &= (rows.sum(axis=1) >= DESIGN_MAP_MIN_WIRES)[:, None]
     if not rows.any():
         return None
     wm = np.where(member, 1.0 / np.maximum(var, 1e-12)[None, :], 0.0)

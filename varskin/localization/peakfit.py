@@ -26,7 +26,7 @@ from varskin.localization._drifting import moved_by_settling, refit_after_settli
 from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
-from varskin.localization._layout_prior import design_scatter_mm
+from varskin.localization._layout_prior import DESIGN_MAP_MIN_WIRES, design_scatter_mm
 from varskin.localization._live_update import update
 from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
@@ -65,12 +65,16 @@ FINGER_LIKE_MM = 0.4
 # so low that the model's own misfit dominates), the offsets the joint rounds reach fit that
 # scale badly: the scatter they imply is 1.12-1.30x it (median per stress row), against
 # 1.04-1.15x on 200 default Patch B scenes. Above JOINT_SETTLE_GUARD the rounds are undone.
-# Not where a patch's design prior is in use: it pins those same edge sensors after the
-# solve, and there the rounds gained little (200 Patch B plan scenes: median RMS 0.499 ->
-# 0.484 mm, none above 2 mm either way) for 1.65x the solve's time, while they moved the
-# batch further from the live view than its stated tolerance (test_live_update_restarts_a_
-# sensor_whose_peak_turns_up_away_from_its_fit: 2.59 sigma) and cost the design prior's
-# pull on off-design patches (docs/benchmarks.md, "Joint rounds after settling").
+# Not where a patch's design prior is in use on both axes: it pins those same edge sensors
+# after the solve, and there the rounds gained little (200 Patch B plan scenes: median RMS
+# 0.499 -> 0.484 mm, none above 2 mm either way) for 1.65x the solve's time, while they
+# moved the batch further from the live view than its stated tolerance (test_live_update_
+# restarts_a_sensor_whose_peak_turns_up_away_from_its_fit: 2.59 sigma) and cost the design
+# prior's pull on off-design patches (docs/benchmarks.md, "Joint rounds after settling").
+# A wire family too small for a design map (Patch A's two RX wires) leaves its axis
+# unpinned, and there the rounds are taken: Patch A finger, seeds 300-359 and 360-559,
+# median RMS 0.453 -> 0.407 and 0.400 mm, worst ratio to the paper method 0.64 -> 0.47
+# (docs/benchmarks.md, "Joint rounds where the design pins one axis only").
 JOINT_SETTLE_ROUNDS = 8
 # ... unless the patch lies so far off its design that the design prior no longer pins
 # those sensors: its wires scatter about the design map by more than DESIGN_LOOSE_MM (the
@@ -105,7 +109,7 @@ DEFAULTS: dict = {
     # "How far finger solves settle").
     "settle_rounds": SETTLE_ROUNDS,
     # Joint rounds a settled solve then tries; 0: none. None: JOINT_SETTLE_ROUNDS unless a
-    # patch's design prior is in use, then none.
+    # patch's design prior pins both axes (and the patch is near its design), then none.
     "joint_settle_rounds": None,
     # Per-axis scatter (mm) of where the probe really lands, if known (a finger ~1, a robot
     # ~0.05): a floor for the scatter estimated from the data, which sparse plans
@@ -927,8 +931,8 @@ class Localizer:
         the offsets they reach still fit that scale (JOINT_SETTLE_GUARD)."""
         rounds = self.params["joint_settle_rounds"]
         if rounds is None:
-            design_prior = self.design is not None and self.params["layout_prior"]
-            rounds = 0 if design_prior and not self._off_design() else JOINT_SETTLE_ROUNDS
+            pinned = self._design_pins_both_axes() and not self._off_design()
+            rounds = 0 if pinned else JOINT_SETTLE_ROUNDS
         if rounds <= 0:
             return
         K = self._k
@@ -944,6 +948,14 @@ class Localizer:
         self._joint_kept = self._joint_ratio <= JOINT_SETTLE_GUARD
         if not self._joint_kept:
             self._set_touch_and_fit_state(kept)
+
+    def _design_pins_both_axes(self) -> bool:
+        """Whether the layout prior uses the patch's design on both axes: each wire family
+        has a design map only with DESIGN_MAP_MIN_WIRES wires or more (Patch A's two RX
+        wires have none, so nothing from the design holds its sensors' y)."""
+        if self.design is None or not self.params["layout_prior"]:
+            return False
+        return all(len(np.unique(g[g >= 0])) >= DESIGN_MAP_MIN_WIRES for g in self.groups)
 
     def _off_design(self) -> bool:
         """Whether the fits' wires scatter about the patch's design map by more than
