@@ -68,9 +68,9 @@ SCALE_RANGE = (0.8, 3.0)
 SETTLED_FLOOR = 0.6
 # ... and a settled solve that kept its joint rounds (peakfit.JOINT_SETTLE_ROUNDS) is nearer
 # the model's optimum still: its check asks for 0.49-0.68 (Patch A finger scenes with
-# another response shape, tests/test_localizer.py MISMATCH), and at the 0.6 floor the stress
-# variants solved without a patch covered up to 0.987 (10 of 68 rows outside 0.90-0.98); at
-# 0.5, 2 rows (docs/benchmarks.md, "Joint rounds where the design pins one axis only").
+# another response shape, tests/test_localizer.py MISMATCH), and at the 0.6 floor 8 finger
+# rows of the stress variants solved without a patch covered 0.981-0.987; at 0.5 none is
+# above 0.98 (docs/benchmarks.md, "Joint rounds where the design pins one axis only").
 JOINT_KEPT_FLOOR = 0.5
 
 
