@@ -244,7 +244,7 @@ def _design_prior(coord, var, in_group, member, design, family, floor_mm: float)
     fitted = _design_map(coord, var, in_group, member, design, family, floor_mm)
     if fitted is None:
         return mean, spread
-    order, mask, lv, lvar, x1, by_offset, slanted, s2 = fitted
+    order, mask, lv, lvar, x1, by_offset, slanted, s2, _ = fitted
     # Each wire's prior comes from the map fitted to the other wires (its own crossings
     # must not vouch for themselves), plus that map's own uncertainty at the wire: the
     # normal equations of all wires minus wire j's own term, for every j at once.
@@ -269,21 +269,27 @@ def design_scatter_mm(
     usable: np.ndarray,
     design_xy: tuple[np.ndarray, np.ndarray],
     min_scatter_mm: float,
-) -> float:
-    """How far the wires lie off the design map, in mm (sd; the larger axis): the scatter
-    the design prior is weighed with (>= ``min_scatter_mm``); NaN if no axis has one.
+) -> np.ndarray:
+    """How far the wires lie off the design map, in mm (sd), for x (the TX wires) and y
+    (the RX wires): the scatter the design prior is weighed with (>= ``min_scatter_mm``);
+    NaN for an axis without a design map (fewer than DESIGN_MAP_MIN_WIRES measured wires).
     Arguments as ``shrink_to_layout``'s."""
     coord, var2, usable2, design, family = _stack_axes(xy, var, usable, design_xy)
     in_group, member = _wire_members(both_axes(tx, rx), usable2)
     fitted = _design_map(coord, var2, in_group, member, design, family, min_scatter_mm)
-    return float("nan") if fitted is None else float(np.sqrt(fitted[-1].max()))
+    out = np.full(2, np.nan)
+    if fitted is not None:
+        mask, s2, fams = fitted[1], fitted[-2], fitted[-1]
+        mapped = mask.any(axis=1)
+        out[fams[mapped]] = np.sqrt(s2[mapped])
+    return out
 
 
 def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
     """Every family's wires against their design, padded to (F, W): the wires' order and
     mask, levels, the levels' variances, the centred design where the map has a scale,
-    the design where it is an offset alone, which families have a scale, and (F,) the
-    wires' scatter about the map. None where no family has >= 3 measured wires."""
+    the design where it is an offset alone, which families have a scale, (F,) the
+    wires' scatter about the map, and (F,) which family each row is. None where no family has >= 3 measured wires."""
     if design is None:
         return None
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
@@ -317,7 +323,7 @@ def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
     by_offset = np.where(mask & ~slanted[:, None], dz, 0.0)
     lv = lv - by_offset
     s2 = _scatter_rows(lv, lvar, x1, mask, count, np.where(slanted, 2, 1), floor_mm, 6)
-    return order, mask, lv, lvar, x1, by_offset, slanted, s2
+    return order, mask, lv, lvar, x1, by_offset, slanted, s2, fams
 
 
 def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: int = 4):

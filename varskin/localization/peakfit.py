@@ -26,7 +26,7 @@ from varskin.localization._drifting import moved_by_settling, refit_after_settli
 from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
-from varskin.localization._layout_prior import DESIGN_MAP_MIN_WIRES, design_scatter_mm
+from varskin.localization._layout_prior import design_scatter_mm
 from varskin.localization._live_update import update
 from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
@@ -931,8 +931,7 @@ class Localizer:
         the offsets they reach still fit that scale (JOINT_SETTLE_GUARD)."""
         rounds = self.params["joint_settle_rounds"]
         if rounds is None:
-            pinned = self._design_pins_both_axes() and not self._off_design()
-            rounds = 0 if pinned else JOINT_SETTLE_ROUNDS
+            rounds = 0 if self._design_pins_both_axes() else JOINT_SETTLE_ROUNDS
         if rounds <= 0:
             return
         K = self._k
@@ -950,23 +949,20 @@ class Localizer:
             self._set_touch_and_fit_state(kept)
 
     def _design_pins_both_axes(self) -> bool:
-        """Whether the layout prior uses the patch's design on both axes: each wire family
-        has a design map only with DESIGN_MAP_MIN_WIRES wires or more (Patch A's two RX
-        wires have none, so nothing from the design holds its sensors' y)."""
+        """Whether the patch's design prior holds the fits' wires on both axes: each wire
+        family has a design map (DESIGN_MAP_MIN_WIRES measured wires or more; Patch A's two
+        RX wires have none, so nothing from the design holds its sensors' y), and the wires
+        scatter about it by at most DESIGN_LOOSE_MM (a patch built or laid far off its
+        design is not held)."""
         if self.design is None or not self.params["layout_prior"]:
             return False
-        return all(len(np.unique(g[g >= 0])) >= DESIGN_MAP_MIN_WIRES for g in self.groups)
-
-    def _off_design(self) -> bool:
-        """Whether the fits' wires scatter about the patch's design map by more than
-        DESIGN_LOOSE_MM: a patch built (or laid) that far off its design."""
         f = self.fit
         var = np.diagonal(f.cov_xy, axis1=1, axis2=2).mean(axis=1)
         usable = f.has_model() & f.converged & (f.n_eff >= pm.MIN_FIT_TOUCHES) & np.isfinite(var)
         tx, rx = self.groups
         floor = float(self.params["wire_scatter_mm"])
-        scatter = design_scatter_mm(f.theta[:, :2], var, tx, rx, usable, self.design, floor)
-        return scatter > DESIGN_LOOSE_MM
+        sd = design_scatter_mm(f.theta[:, :2], var, tx, rx, usable, self.design, floor)
+        return bool(np.isfinite(sd).all() and sd.max() <= DESIGN_LOOSE_MM)
 
     def _touch_and_fit_state(self) -> dict:
         """What a polish changes, to put back with _set_touch_and_fit_state."""
