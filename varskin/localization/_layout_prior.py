@@ -21,6 +21,8 @@ is wide) keeps the position the prior gives it, but its error bar takes in the d
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 # How far (in sds of the prediction) a crossing may lie from the line its wire-mates draw
@@ -279,17 +281,28 @@ def design_scatter_mm(
     fitted = _design_map(coord, var2, in_group, member, design, family, min_scatter_mm)
     out = np.full(2, np.nan)
     if fitted is not None:
-        mask, s2, fams = fitted[1], fitted[-2], fitted[-1]
-        mapped = mask.any(axis=1)
-        out[fams[mapped]] = np.sqrt(s2[mapped])
+        mapped = fitted.mask.any(axis=1)
+        out[fitted.families[mapped]] = np.sqrt(fitted.scatter2[mapped])
     return out
 
 
-def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
-    """Every family's wires against their design, padded to (F, W): the wires' order and
-    mask, levels, the levels' variances, the centred design where the map has a scale,
-    the design where it is an offset alone, which families have a scale, (F,) the
-    wires' scatter about the map, and (F,) which family each row is. None where no family has >= 3 measured wires."""
+class _DesignMap(NamedTuple):
+    """Every family's wires against their design, rows padded to (F, W)."""
+
+    order: np.ndarray  # (F, W) the wires, by index
+    mask: np.ndarray  # (F, W) which entries are wires
+    levels: np.ndarray  # (F, W) the wires' fitted levels (minus the design, offset-only maps)
+    level_var: np.ndarray  # (F, W) their variances
+    x1: np.ndarray  # (F, W) the centred design where the map has a scale, else 0
+    by_offset: np.ndarray  # (F, W) the design where the map is an offset alone, else 0
+    slanted: np.ndarray  # (F,) which families' maps have a scale
+    scatter2: np.ndarray  # (F,) the wires' scatter about the map (variance, mm^2)
+    families: np.ndarray  # (F,) which family (0: TX, x; 1: RX, y) each row is
+
+
+def _design_map(coord, var, in_group, member, design, family, floor_mm: float) -> _DesignMap | None:
+    """Every family's wires against their design map; None where no family has
+    DESIGN_MAP_MIN_WIRES measured wires."""
     if design is None:
         return None
     designed = np.where(in_group, np.isfinite(design)[None, :], True).all(axis=1)
@@ -323,7 +336,7 @@ def _design_map(coord, var, in_group, member, design, family, floor_mm: float):
     by_offset = np.where(mask & ~slanted[:, None], dz, 0.0)
     lv = lv - by_offset
     s2 = _scatter_rows(lv, lvar, x1, mask, count, np.where(slanted, 2, 1), floor_mm, 6)
-    return order, mask, lv, lvar, x1, by_offset, slanted, s2, fams
+    return _DesignMap(order, mask, lv, lvar, x1, by_offset, slanted, s2, fams)
 
 
 def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: int = 4):
