@@ -11,9 +11,10 @@ sigma of 0.5-0.6 mm that way (docs/benchmarks.md, "Settling the fit did not foll
 sensors far from those touches see their own floors settle at the same times. Assuming the
 settling keeps one time course across the board (each sensor its own size and sign), their
 far touches give that course, and each sensor's far touches late in the session give its
-size. This judges the fits; it does not correct them: a sensor whose floor moved during its
-own touches by more than its fit followed is `drifting`, with the reason, and a re-probe
-near it once the offsets are steady places it.
+size. A sensor whose floor moved during its own touches by far more than its fit followed
+is `drifting`, with the reason, and a re-probe near it once the offsets are steady places
+it; one that left less unfollowed is fitted again with the settling taken out of its
+readings (_drifting.take_out_settling).
 """
 
 from __future__ import annotations

@@ -201,6 +201,10 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         if ok.sum() >= 3:
             placed &= raw_amp >= WEAK_FRACTION * np.median(raw_amp[ok])
         status[placed] = OK
+    # `drifting` before the settling was taken out of its readings: its corrected fit
+    # places its wires above, like an `ok` one, but it is not reported
+    # (_drifting.take_out_settling).
+    status[(status == OK) & loc._held_drifting] = DRIFTING
     sigma = sd * to_sigma
     return status, xy, sigma, snr, params
 
