@@ -97,13 +97,10 @@ def moved_by_settling(loc: Localizer, inside: np.ndarray) -> np.ndarray:
     kept = f.copy_of(cols)
     before = f.theta[cols, :2].copy()
     sd = np.sqrt(np.maximum(np.trace(f.cov_xy[cols], axis1=1, axis2=2) / 2.0, 0.0))
-    V = loc._V[:K, cols].copy()
     try:
-        loc._V[:K, cols] = V - settled * loc._sign
-        loc._refit_warm(cols)
+        _refit_without(loc, cols, settled, loc._refit_warm)
         moved = np.hypot(*(f.theta[cols, :2] - before).T)
     finally:
-        loc._V[:K, cols] = V
         f.put(kept, cols)
     sigma = sd * R95_PER_AXIS_SD / 2.0
     out[cols] = (moved > SETTLING_MOVE_SIGMAS * sigma) & (moved > SETTLING_MOVE_MM)
@@ -188,7 +185,7 @@ def take_out_settling(loc: Localizer) -> None:
     """
     if loc._settling is None or loc._k < 3:
         return
-    K, f = loc._k, loc.fit
+    f = loc.fit
     course, level = loc._settling
     inside = window_members(loc, f.theta[:, :2], pm.half_width(f.theta), loc.spacing())
     with np.errstate(all="ignore"):
@@ -205,12 +202,19 @@ def take_out_settling(loc: Localizer) -> None:
         return
     loc._held_drifting[cols] = status[cols] == DRIFTING
     settled = level[cols][None, :] * smoothed_course(course, loc._tau())[:, None]
-    V = loc._V[:K, cols].copy()
-    try:
-        loc._V[:K, cols] = V - settled * loc._sign
-        loc._refit(cols)
-    finally:
-        loc._V[:K, cols] = V
+    _refit_without(loc, cols, settled, loc._refit)
     level = level.copy()
     level[cols] = 0.0
     loc._settling = (course, level)
+
+
+def _refit_without(loc: Localizer, cols: np.ndarray, settled: np.ndarray, refit) -> None:
+    """``refit(cols)`` on sensors ``cols``' readings less ``settled`` ((K, len(cols)), peak-up
+    units); the readings are as logged again afterwards, whatever the re-fit did."""
+    K = loc._k
+    V = loc._V[:K, cols].copy()
+    try:
+        loc._V[:K, cols] = V - settled * loc._sign
+        refit(cols)
+    finally:
+        loc._V[:K, cols] = V
