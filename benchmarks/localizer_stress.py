@@ -12,15 +12,16 @@ not.
 
 Run as ``python benchmarks/localizer_stress.py [--seeds 500:510] [--jobs 2] [--only ...]
 [--solver alternate|joint] [--prior patch|inferred|none] [--settle-rounds N]
-[--joint-settle-rounds N]`` (3m25s on the 2-core VM with 2 jobs in session 40;
-docs/bench/stress.md). Peakfit runs
-with the layout prior from the patch (``patch=``), as ``varskin calibrate`` runs it,
-unless ``--prior`` says otherwise; the paper method at ppcm 16.
-Prints one row per variant x patch x probe: located, pooled RMS of peakfit and of the
-paper method over the sensors both located, max error, how many ``ok`` sensors are above
-2 mm, 2-sigma coverage, peakfit's estimate of the touches' placement scatter, the response
-shapes its scenes chose (L, G, E: Lorentzian, Gaussian, exponential, with their counts),
-and the silent failures.
+[--joint-settle-rounds N] [--settling-shift-rms X]`` (2m41s on the 2-core VM with 2 jobs
+in session 53; docs/bench/stress.md). Peakfit runs with the layout prior from the patch
+(``patch=``), as ``varskin calibrate`` runs it, unless ``--prior`` says otherwise; the
+paper method at ppcm 16. Prints one row per variant x patch x probe: located, pooled RMS
+of peakfit and of the paper method over the sensors both located, max error, how many
+``ok`` sensors are above 2 mm, 2-sigma coverage (over all ``ok`` sensors, then over those
+the board's settling was taken out of, ``settling_taken_out_mm``), peakfit's estimate of
+the touches' placement scatter, the response shapes its scenes chose (L, G, E:
+Lorentzian, Gaussian, exponential, with their counts), and the silent failures; then how
+many rows cover outside 0.90-0.98, and the corrected sensors' coverage per probe.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from dataclasses import replace
 import numpy as np
 from localizer_seeds import add_settle_rounds, settle_params
 
-from varskin.localization import localize
+from varskin.localization import _statuses, localize
 from varskin.patch import builtin_patch
 from varskin.scene import ProbeModel, SceneParams
 from varskin.simulate import simulate_session, uniform_grid
@@ -101,7 +102,8 @@ def _rms(e: np.ndarray) -> float:
 
 
 def one_scene(job):
-    variant, pname, probe, seed, solver, prior, settle = job
+    variant, pname, probe, seed, solver, prior, settle, shift_rms = job
+    _statuses.SETTLING_SHIFT_RMS = shift_rms
     params, grid = VARIANTS[variant]
     patch = builtin_patch(pname)
     model = ProbeModel.named(probe)
@@ -119,6 +121,8 @@ def one_scene(job):
     sig = np.array([e.sigma_mm if e.status == "ok" else np.nan for e in pf])
     ok = np.isfinite(ef)
     both = ok & np.isfinite(ep)
+    taken_out = pf.params.get("settling_taken_out_mm", {})
+    corrected = np.array([e.sensor in taken_out for e in pf])
     silent = [
         (seed, pf.estimates[i].sensor, float(ef[i]), float(sig[i]))
         for i in np.flatnonzero(ok)
@@ -130,6 +134,7 @@ def one_scene(job):
         "ok": int(ok.sum()),
         "ef": ef[ok],
         "cover": (ef[ok] <= 2 * sig[ok]),
+        "corrected": corrected[ok],
         "ef_both": ef[both],
         "ep_both": ep[both],
         "silent": silent,
@@ -157,6 +162,14 @@ def main() -> None:
         "it), from wires inferred without a patch (`varskin localize` without --patch), or none",
     )
     add_settle_rounds(ap)
+    ap.add_argument(
+        "--settling-shift-rms",
+        type=float,
+        default=_statuses.SETTLING_SHIFT_RMS,
+        help="the error of the settling taken out of a sensor's readings, as a multiple of "
+        f"how far it moved the fit (default {_statuses.SETTLING_SHIFT_RMS:g}; 0: not in the "
+        "error bar)",
+    )
     args = ap.parse_args()
     a, b = (int(v) for v in args.seeds.split(":"))
     names = _variant_names(args.only) or list(VARIANTS)
@@ -164,7 +177,7 @@ def main() -> None:
     if unknown:
         ap.error(f"--only: unknown variant(s) {unknown}; known: {', '.join(VARIANTS)}")
     jobs = [
-        (v, pn, pr, seed, args.solver, args.prior, settle_params(args))
+        (v, pn, pr, seed, args.solver, args.prior, settle_params(args), args.settling_shift_rms)
         for v in names
         for pn in ("patch_a", "patch_b")
         for pr in ("robot", "finger")
@@ -176,15 +189,21 @@ def main() -> None:
             rows.setdefault(r["key"], []).append(r)
     print(
         "| variant | patch | probe | located | peakfit RMS | paper RMS (same sensors) | ratio "
-        "| max | ok > 2 mm | 2 sigma | placement sd, estimated (median) | shape chosen "
-        "| silent failures |"
+        "| max | ok > 2 mm | 2 sigma | 2 sigma, settling taken out (sensors) "
+        "| placement sd, estimated (median) | shape chosen | silent failures |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    outside = 0
+    pooled: dict[str, list] = {"robot": [], "finger": []}
     for key, rs in rows.items():
         ok = sum(r["ok"] for r in rs)
         n = sum(r["n"] for r in rs)
         ef = np.concatenate([r["ef"] for r in rs])
         cov = np.concatenate([r["cover"] for r in rs])
+        corr = np.concatenate([r["corrected"] for r in rs])
+        corr_cov = f"{cov[corr].mean():.3f} ({corr.sum()})" if corr.any() else "- (0)"
+        outside += not 0.90 <= cov.mean() <= 0.98
+        pooled.setdefault(key[2], []).append(cov[corr])
         fb = np.concatenate([r["ef_both"] for r in rs])
         pb = np.concatenate([r["ep_both"] for r in rs])
         silent = [s for r in rs for s in r["silent"]]
@@ -196,11 +215,19 @@ def main() -> None:
         print(
             f"| {key[0]} | {key[1][-1].upper()} | {key[2]} | {ok}/{n} | {_rms(ef):.3f} mm "
             f"| {_rms(pb):.3f} mm | {_rms(fb) / _rms(pb):.2f} | {ef.max():.2f} mm "
-            f"| {int((ef > 2.0).sum())} | {cov.mean():.3f} "
+            f"| {int((ef > 2.0).sum())} | {cov.mean():.3f} | {corr_cov} "
             f"| {np.median([r['place_sd'] for r in rs]):.2f} mm | {chosen} "
             f"| {len(silent)}{': ' + desc if desc else ''} |",
             flush=True,
         )
+    print(f"\nrows with 2-sigma coverage outside 0.90-0.98: {outside} of {len(rows)}")
+    for probe, parts in pooled.items():
+        c = np.concatenate(parts) if parts else np.array([])
+        if c.size:
+            print(
+                f"{probe}: 2 sigma covers {c.mean():.3f} of {c.size} ok sensors "
+                "with the settling taken out"
+            )
 
 
 if __name__ == "__main__":

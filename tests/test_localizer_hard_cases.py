@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from varskin.localization import _drifting, peakfit
+from varskin.localization import _drifting, _statuses, peakfit
 from varskin.localization._settling import board_settling
 from varskin.localization._statuses import DRIFTING
 from varskin.patch import patch_from_dict
@@ -525,6 +525,37 @@ def test_the_readings_are_put_back_as_logged_after_the_correction(patch_a):
     again = loc.result()
     assert np.array_equal(again.xy(), first.xy(), equal_nan=True)
     assert [e.status for e in again] == [e.status for e in first]
+
+
+def test_the_settling_taken_out_is_in_the_corrected_sensors_error_bars(patch_a, monkeypatch):
+    """Patch A, robot, 30 x 8 grid, patch given, seeds 504-506: the board's settling is
+    taken out of 15 `ok` sensors' readings, and the result names them. Their fits' own
+    sigmas cover 9 within 2 sigma; with the correction's error in the error bar (as large
+    as the move it made in the fit, _statuses.SETTLING_SHIFT_RMS), every one. No position
+    and no status changes, and no other sensor's sigma."""
+    covered = {1.0: 0, 0.0: 0}
+    corrected = 0
+    for seed in (504, 505, 506):
+        s = simulate_session(patch_a, uniform_grid(patch_a, 30, 8), probe="robot", seed=seed)
+        loc = peakfit.solved(s.point_logs(), patch=patch_a)
+        with_it = check(loc.result(), len(patch_a.sensors))
+        monkeypatch.setattr(_statuses, "SETTLING_SHIFT_RMS", 0.0)
+        without = check(loc.result(), len(patch_a.sensors))
+        monkeypatch.undo()
+        assert np.array_equal(with_it.xy(), without.xy(), equal_nan=True)
+        assert [e.status for e in with_it] == [e.status for e in without]
+        taken = with_it.params["settling_taken_out_mm"]
+        assert all(v > 0 for v in taken.values())
+        for i, (a, b) in enumerate(zip(with_it, without, strict=True)):
+            if a.sensor not in taken:
+                assert a.sigma_mm == b.sigma_mm
+            elif a.status == OK:
+                corrected += 1
+                assert a.sigma_mm > b.sigma_mm
+                covered[1.0] += err(with_it, s.truth, i) <= 2.0 * a.sigma_mm
+                covered[0.0] += err(with_it, s.truth, i) <= 2.0 * b.sigma_mm
+    assert corrected == 15
+    assert covered == {1.0: 15, 0.0: 9}
 
 
 @pytest.mark.parametrize("use_patch", [True, False])

@@ -177,7 +177,8 @@ def take_out_settling(loc: Localizer) -> None:
     The readings are put back as logged: a live update adds its raw touches to them (kept
     corrected, the next touch stood a whole settled level off the older ones, and the live
     view of Patch B robot seeds 0-15 ended up to 4.9 mm from the batch). The settling the
-    judge sees for the corrected sensors is nil.
+    judge sees for the corrected sensors is nil; how far the re-fit moved each of them is
+    kept (``_settling_shift``) for its error bar (_statuses.SETTLING_SHIFT_RMS).
 
     Each sensor is fitted afresh: two warm polish rounds of every sensor and touch on the
     corrected readings took seed 490's S2 to 3.34 mm instead (docs/benchmarks.md, "The
@@ -202,7 +203,10 @@ def take_out_settling(loc: Localizer) -> None:
         return
     loc._held_drifting[cols] = status[cols] == DRIFTING
     settled = level[cols][None, :] * smoothed_course(course, loc._tau())[:, None]
+    before = f.theta[cols, :2].copy()
     _refit_without(loc, cols, settled, loc._refit)
+    moved = np.hypot(*(f.theta[cols, :2] - before).T)
+    loc._settling_shift[cols] = np.where(np.isfinite(moved), moved, 0.0)
     level = level.copy()
     level[cols] = 0.0
     loc._settling = (course, level)

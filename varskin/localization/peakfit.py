@@ -342,6 +342,9 @@ class Localizer:
         # Per sensor: `drifting` before that settling was taken out of its readings, and so
         # still `drifting` after (_drifting.take_out_settling).
         self._held_drifting = np.zeros(n, bool)
+        # Per sensor: how far taking that settling out of its readings moved its fit (mm;
+        # _drifting.take_out_settling), a part of its error bar.
+        self._settling_shift = np.zeros(n)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -925,6 +928,7 @@ class Localizer:
         self._settling = None
         self._moved_by_settling[:] = False
         self._held_drifting[:] = False
+        self._settling_shift[:] = 0.0
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)
