@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from varskin.cli import main
+from varskin.cli.localize import settling_note
 from varskin.predictions import Predictions, SensorEstimate
 
 
@@ -274,6 +275,31 @@ def test_localize_says_where_the_wire_prior_took_the_wires_from(simulated, tmp_p
         assert main(["localize", str(path), *extra]) == 0
         last = capsys.readouterr().out.strip().splitlines()[-1]
         assert last.startswith("peakfit: ") and last.endswith(words), last
+
+
+def test_localize_names_the_sensors_the_board_settling_was_taken_out_of(
+    simulated, tmp_path, capsys
+):
+    """This finger scene's batch solve takes the board's settling out of some sensors'
+    readings: the JSON's params give each one's move in mm, and the printout names them,
+    with the largest move, just above the summary line."""
+    logs, _ = simulated
+    path = tmp_path / "p.json"
+    capsys.readouterr()
+    assert main(["localize", str(logs), "--json", str(path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    moved = json.loads(path.read_text())["params"]["settling_taken_out_mm"]
+    assert moved and all(v > 0 for v in moved.values())
+    worst = max(moved, key=moved.get)
+    note = lines[-2]
+    assert note.startswith(f"board settling taken out of {len(moved)} sensor(s)' readings: ")
+    assert ", ".join(moved) in note and f"largest move {worst}, {moved[worst]:.2f} mm" in note
+    assert lines[-1].startswith("peakfit: ")
+    assert settling_note({}) == ""
+    many = {f"S{i}": 0.01 * i for i in range(1, 14)}
+    assert "S1, S2, S3, S4, S5, S6, S7, S8, S9, S10, ... (3 more)" in settling_note(
+        {"settling_taken_out_mm": many}
+    )
 
 
 def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_path):

@@ -183,6 +183,26 @@ WIRES_NOTE = {
 }
 
 
+NOTE_NAMES = 10  # a full board may correct dozens; the JSON has them all
+
+
+def settling_note(params: dict) -> str:
+    """A line naming how many sensors had the board's settling taken out of their readings
+    (peakfit, ``settling_taken_out_mm``) and the largest move that made; "" if none."""
+    moved = params.get("settling_taken_out_mm") or {}
+    if not moved:
+        return ""
+    worst = max(moved, key=moved.get)
+    names = list(moved)
+    shown = ", ".join(names[:NOTE_NAMES]) + (
+        f", ... ({len(names) - NOTE_NAMES} more)" if len(names) > NOTE_NAMES else ""
+    )
+    return (
+        f"board settling taken out of {len(moved)} sensor(s)' readings: {shown} "
+        f"(largest move {worst}, {moved[worst]:.2f} mm; in their sigma_mm)"
+    )
+
+
 def prediction_table(predictions) -> str:
     lines = [f"{'sensor':<8} {'x_mm':>8} {'y_mm':>8} {'sigma_mm':>8} {'snr_db':>7} status"]
     for e in predictions:
@@ -229,6 +249,9 @@ def run(args) -> int:
             write_plots(Path(args.plots), logs, predictions, sensors, params, outline=outline)
     if not args.quiet:
         print(prediction_table(predictions))
+        note = settling_note(predictions.params)
+        if note:
+            print(note)
         ok = sum(e.status == "ok" for e in predictions)
         line = f"{predictions.method}: {ok}/{len(predictions)} sensors localized"
         wires = predictions.params.get("wires")
