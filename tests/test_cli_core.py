@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from varskin.cli import main
-from varskin.cli.localize import settling_note
+from varskin.cli.localize import settling_note, unseen_note
 from varskin.predictions import Predictions, SensorEstimate
 
 
@@ -300,6 +300,27 @@ def test_localize_names_the_sensors_the_board_settling_was_taken_out_of(
     assert "S1, S2, S3, S4, S5, S6, S7, S8, S9, S10, ... (3 more)" in settling_note(
         {"settling_taken_out_mm": many}
     )
+
+
+def test_localize_names_the_sensors_placed_from_their_peaks_flanks(tmp_path, capsys):
+    """A 12 x 3 robot plan leaves gaps wider than a bump: the sensors no touch came near
+    are named, with the largest move the other response shapes gave, above the summary
+    line; the JSON's params hold every one of them."""
+    logs, path = tmp_path / "logs.csv", tmp_path / "p.json"
+    args = ["simulate", "--patch", "patch_b", "--grid", "12x3", "--probe", "robot"]
+    assert main([*args, "--seed", "1", "-o", str(logs)]) == 0
+    capsys.readouterr()
+    assert main(["localize", str(logs), "--patch", "patch_b", "--json", str(path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    spread = json.loads(path.read_text())["params"]["shape_spread_mm"]
+    assert spread and all(v > 0 for v in spread.values())
+    worst = max(spread, key=spread.get)
+    note = lines[-2]
+    assert note.startswith(f"{len(spread)} sensor(s) placed from their peaks' flanks, ")
+    assert ", ".join(spread) in note
+    assert f"other response shapes {worst}, {spread[worst]:.2f} mm" in note
+    assert lines[-1].startswith("peakfit: ")
+    assert unseen_note({}) == ""
 
 
 def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_path):

@@ -193,14 +193,30 @@ def settling_note(params: dict) -> str:
     if not moved:
         return ""
     worst = max(moved, key=moved.get)
-    names = list(moved)
-    shown = ", ".join(names[:NOTE_NAMES]) + (
-        f", ... ({len(names) - NOTE_NAMES} more)" if len(names) > NOTE_NAMES else ""
-    )
     return (
-        f"board settling taken out of {len(moved)} sensor(s)' readings: {shown} "
+        f"board settling taken out of {len(moved)} sensor(s)' readings: {_names(moved)} "
         f"(largest move {worst}, {moved[worst]:.2f} mm; in their sigma_mm)"
     )
+
+
+def unseen_note(params: dict) -> str:
+    """A line naming the located sensors whose peaks no touch came near (peakfit,
+    ``shape_spread_mm``) and the largest spread of their places; "" if none."""
+    spread = params.get("shape_spread_mm") or {}
+    if not spread:
+        return ""
+    worst = max(spread, key=spread.get)
+    return (
+        f"{len(spread)} sensor(s) placed from their peaks' flanks, no touch near the top: "
+        f"{_names(spread)} (largest move under the other response shapes {worst}, "
+        f"{spread[worst]:.2f} mm; in their sigma_mm; a touch nearer places them better)"
+    )
+
+
+def _names(by_sensor: dict) -> str:
+    names = list(by_sensor)
+    more = len(names) - NOTE_NAMES
+    return ", ".join(names[:NOTE_NAMES]) + (f", ... ({more} more)" if more > 0 else "")
 
 
 def prediction_table(predictions) -> str:
@@ -249,9 +265,9 @@ def run(args) -> int:
             write_plots(Path(args.plots), logs, predictions, sensors, params, outline=outline)
     if not args.quiet:
         print(prediction_table(predictions))
-        note = settling_note(predictions.params)
-        if note:
-            print(note)
+        for note in (settling_note(predictions.params), unseen_note(predictions.params)):
+            if note:
+                print(note)
         ok = sum(e.status == "ok" for e in predictions)
         line = f"{predictions.method}: {ok}/{len(predictions)} sensors localized"
         wires = predictions.params.get("wires")

@@ -14,6 +14,7 @@ import numpy as np
 
 from varskin.localization import _peak_model as pm
 from varskin.localization._maps import nanmedian_cols
+from varskin.localization._unseen import UNSEEN_FRACTION, seen_height
 from varskin.pointlogs import PointLog
 from varskin.predictions import Predictions
 
@@ -129,4 +130,9 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
             sub = np.flatnonzero(pick)
             inputs = tuple(a[sub] if a.ndim == 1 else a[:, sub] for a in first)
         loc._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS, inputs=inputs)
+    # A peak this touch came near is seen now; one still unseen keeps the spread the last
+    # batch solve measured for it (_unseen.py).
+    if todo.size and loc._shape_shift[todo].any():
+        unseen = seen_height(loc, f.theta[todo], todo) < UNSEEN_FRACTION
+        loc._shape_shift[todo] *= unseen
     return loc._current()

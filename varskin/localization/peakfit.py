@@ -37,6 +37,7 @@ from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
 from varskin.localization._shape_screen import favoured_shape
 from varskin.localization._statuses import DEAD, judge, window_members
+from varskin.localization._unseen import shape_spread
 from varskin.patch import Patch
 from varskin.pointlogs import MAX_TIME_S, PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
@@ -345,6 +346,9 @@ class Localizer:
         # Per sensor: how far taking that settling out of its readings moved its fit (mm;
         # _drifting.take_out_settling), a part of its error bar.
         self._settling_shift = np.zeros(n)
+        # Per sensor whose peak no touch came near: how far the model's other response
+        # shapes move its fit (mm; _unseen.shape_spread), a part of its error bar.
+        self._shape_shift = np.zeros(n)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -856,7 +860,9 @@ class Localizer:
         The sessions it simulates solve without either: they keep the shape their readings
         were drawn from. With ``calibrate``, the `alternate` solver also takes the board's
         settling out of the readings of the sensors whose fits did not follow it, and fits
-        those again (_drifting.take_out_settling).
+        those again (_drifting.take_out_settling); and, unless the shape was given, it
+        measures how far the other shapes move the peaks no touch came near
+        (_unseen.shape_spread).
         """
         self._sigma_scale = 1.0
         self._shape_z = None
@@ -878,6 +884,10 @@ class Localizer:
         # of the readings").
         if calibrate and self.params["solver"] == "alternate":
             take_out_settling(self)
+        # Last, on the fits as reported. Not where the user fixed the shape, nor in the
+        # sessions the error-bar check simulates: both know their shape.
+        if calibrate and self._fixed_shape is None:
+            shape_spread(self)
         self._dirty = False
 
     def _solve_once(self, screen: bool) -> None:
@@ -929,6 +939,7 @@ class Localizer:
         self._moved_by_settling[:] = False
         self._held_drifting[:] = False
         self._settling_shift[:] = 0.0
+        self._shape_shift[:] = 0.0
         self._sign = self._detect_sign()
         self._spacing_used = self.spacing()
         n = len(self.sensors)

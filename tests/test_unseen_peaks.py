@@ -1,0 +1,115 @@
+"""Peaks no touch came near: how much of a peak the touches saw, and the response shapes'
+spread in the error bar of the ones they did not (varskin/localization/_unseen.py)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from varskin.localization import _peak_model as pm
+from varskin.localization import _unseen, localize, peakfit
+from varskin.planning import uniform_points
+from varskin.pointlogs import PointLog
+from varskin.predictions import OK
+from varskin.simulate import simulate_session, simulate_touch, uniform_grid
+
+
+def _localizer_with_touches(points, values):
+    """A Localizer holding one sensor's readings at ``points`` (no solve)."""
+    loc = peakfit.Localizer(["S1"])
+    for k, ((x, y), v) in enumerate(zip(points, values, strict=True)):
+        loc._append(PointLog(touch=k + 1, x_mm=x, y_mm=y, values=np.array([v])))
+    return loc
+
+
+def _theta(x, y, half_width):
+    th = np.zeros((1, pm.N_PARAMS))
+    th[0, [pm.SX, pm.SY]] = x, y
+    th[0, [pm.LW, pm.LWY]] = np.log(half_width)
+    th[0, pm.AMP] = 1.0
+    return th
+
+
+@pytest.mark.parametrize("shape", ["lorentzian", "gaussian"])
+def test_seen_height_is_the_bump_at_the_nearest_usable_touch(shape):
+    loc = _localizer_with_touches([(0.0, 0.0), (10.0, 0.0), (30.0, 0.0)], [5.0, 5.0, 5.0])
+    loc.settings = replace(loc.settings, shape=shape)
+    # On a touch: all of it. One half width from the nearest touch: half of it, whatever
+    # the shape (the profile's definition).
+    assert _unseen.seen_height(loc, _theta(10.0, 0.0, 3.0))[0] == pytest.approx(1.0)
+    assert _unseen.seen_height(loc, _theta(13.0, 0.0, 3.0))[0] == pytest.approx(0.5)
+    # A touch whose reading is missing saw nothing; nor did a touch judged missed.
+    loc._V[1, 0] = np.nan
+    far = _unseen.seen_height(loc, _theta(13.0, 0.0, 3.0))[0]
+    assert far == pytest.approx(float(pm.profile(np.array(13.0**2 / 3.0**2), 0.0, shape)))
+    assert far < _unseen.UNSEEN_FRACTION
+    loc._V[1, 0] = 5.0
+    loc._missed[1] = True
+    assert _unseen.seen_height(loc, _theta(13.0, 0.0, 3.0))[0] == pytest.approx(far)
+
+
+def test_on_a_dense_grid_every_located_peak_is_seen(patch_b):
+    """The 20 x 5 grids the accuracy targets are set on: nothing to add to any sigma."""
+    for probe in ("robot", "finger"):
+        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), probe, 3)
+        pred = localize(s.point_logs(), patch=patch_b)
+        named = pred.params.get("shape_spread_mm", {})
+        assert not [e.sensor for e in pred if e.status == OK and e.sensor in named]
+
+
+def test_a_peak_between_far_touches_holds_the_shapes_spread_in_its_error_bar(patch_b, monkeypatch):
+    """An 8 x 3 plan (the adaptive planner's coarse pass) leaves 21 mm between columns. The
+    sensors whose peaks no touch came near are named with their spread and their sigmas
+    grow by it, and their errors fall within 2 sigma more often than without it. No
+    position moves, and the sensors whose peaks were seen keep their sigmas."""
+    grid = uniform_points(patch_b, 8, 3)
+    inside = {True: [], False: []}
+    for seed in range(6):
+        s = simulate_session(patch_b, grid, "robot", seed)
+        with_spread = localize(s.point_logs(), patch=patch_b)
+        with monkeypatch.context() as m:
+            m.setattr(_unseen, "UNSEEN_FRACTION", 0.0)
+            without = localize(s.point_logs(), patch=patch_b)
+        assert "shape_spread_mm" not in without.params
+        np.testing.assert_array_equal(with_spread.xy(), without.xy())
+        named = with_spread.params.get("shape_spread_mm", {})
+        for a, b, t in zip(with_spread, without, s.truth, strict=True):
+            if a.status != OK:
+                continue
+            if a.sensor not in named:
+                assert a.sigma_mm == b.sigma_mm
+                continue
+            assert named[a.sensor] > 0.0 and a.sigma_mm > b.sigma_mm
+            err = float(np.hypot(a.x_mm - t[0], a.y_mm - t[1]))
+            inside[True].append(err <= 2.0 * a.sigma_mm)
+            inside[False].append(err <= 2.0 * b.sigma_mm)
+    assert len(inside[True]) >= 5
+    assert sum(inside[True]) > sum(inside[False])
+    assert all(inside[True])
+
+
+def test_a_touch_on_an_unseen_peak_takes_its_spread_out_of_the_live_error_bar(patch_b):
+    grid = uniform_points(patch_b, 8, 3)
+    s = simulate_session(patch_b, grid, "robot", 2)
+    logs = s.point_logs()
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
+    for log in logs.logs():
+        loc.update(log)
+    named = loc.result().params.get("shape_spread_mm", {})
+    assert named
+    name = max(named, key=named.get)
+    i = logs.sensors.index(name)
+    before = loc._current().by_name()[name]
+    # The next touch lands on that sensor's true position: its peak is seen now.
+    x, y = s.truth[i]
+    rng = np.random.default_rng(0)
+    log = simulate_touch(
+        s.scene, s.probe, x, y, float(s.t_s[-1]) + 1.5, rng, touch=len(grid) + 1, rest=logs.rest
+    )
+    after = loc.update(log)
+    assert loc._shape_shift[i] == 0.0
+    assert name not in after.params.get("shape_spread_mm", {})
+    if before.status == OK and after.by_name()[name].status == OK:
+        assert after.by_name()[name].sigma_mm < before.sigma_mm
