@@ -189,34 +189,38 @@ NOTE_NAMES = 10  # a full board may correct dozens; the JSON has them all
 def settling_note(params: dict) -> str:
     """A line naming how many sensors had the board's settling taken out of their readings
     (peakfit, ``settling_taken_out_mm``) and the largest move that made; "" if none."""
-    moved = params.get("settling_taken_out_mm") or {}
-    if not moved:
-        return ""
-    worst = max(moved, key=moved.get)
-    return (
-        f"board settling taken out of {len(moved)} sensor(s)' readings: {_names(moved)} "
-        f"(largest move {worst}, {moved[worst]:.2f} mm; in their sigma_mm)"
+    return _note(
+        params.get("settling_taken_out_mm"),
+        "board settling taken out of {n} sensor(s)' readings",
+        "largest move",
+        "in their sigma_mm",
     )
 
 
 def unseen_note(params: dict) -> str:
     """A line naming the located sensors whose peaks no touch came near (peakfit,
     ``shape_spread_mm``) and the largest spread of their places; "" if none."""
-    spread = params.get("shape_spread_mm") or {}
-    if not spread:
-        return ""
-    worst = max(spread, key=spread.get)
-    return (
-        f"{len(spread)} sensor(s) placed from their peaks' flanks, no touch near the top: "
-        f"{_names(spread)} (largest move under the other response shapes {worst}, "
-        f"{spread[worst]:.2f} mm; in their sigma_mm; a touch nearer places them better)"
+    return _note(
+        params.get("shape_spread_mm"),
+        "{n} sensor(s) placed from their peaks' flanks, no touch near the top",
+        "largest move under the other response shapes",
+        "in their sigma_mm; a touch nearer places them better",
     )
 
 
-def _names(by_sensor: dict) -> str:
+def _note(by_sensor: dict | None, head: str, largest: str, tail: str) -> str:
+    """``head`` (with {n}, how many), the first NOTE_NAMES sensor names, and the largest
+    of their values (mm); "" if there are none."""
+    if not by_sensor:
+        return ""
     names = list(by_sensor)
+    worst = max(names, key=by_sensor.get)
     more = len(names) - NOTE_NAMES
-    return ", ".join(names[:NOTE_NAMES]) + (f", ... ({more} more)" if more > 0 else "")
+    shown = ", ".join(names[:NOTE_NAMES]) + (f", ... ({more} more)" if more > 0 else "")
+    return (
+        f"{head.format(n=len(names))}: {shown} "
+        f"({largest} {worst}, {by_sensor[worst]:.2f} mm; {tail})"
+    )
 
 
 def prediction_table(predictions) -> str:
