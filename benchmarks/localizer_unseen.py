@@ -9,8 +9,8 @@ grid and scene type: the `ok` sensors, those whose peak was unseen (named in the
 RMS of all `ok` sensors both ways. Grids are ``varskin calibrate``'s (3 mm margin); the
 patch is given, as a session gives it.
 
-Run as ``python benchmarks/localizer_unseen.py`` (seeds 100-109, about five minutes on
-the 2-core VM) or with ``--seeds 100-119 --grids 8x3 10x3``.
+Run as ``python benchmarks/localizer_unseen.py`` (seeds 100-109; 6-9 minutes on the 2-core
+VM beside other runs) or with ``--seeds 100-119 --grids 8x3 10x3``.
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
