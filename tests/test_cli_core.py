@@ -284,17 +284,9 @@ def test_localize_names_the_sensors_the_board_settling_was_taken_out_of(
     readings: the JSON's params give each one's move in mm, and the printout names them,
     with the largest move, just above the summary line."""
     logs, _ = simulated
-    path = tmp_path / "p.json"
-    capsys.readouterr()
-    assert main(["localize", str(logs), "--json", str(path)]) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
-    moved = json.loads(path.read_text())["params"]["settling_taken_out_mm"]
-    assert moved and all(v > 0 for v in moved.values())
-    worst = max(moved, key=moved.get)
-    note = lines[-2]
+    note, moved, worst = _note_above_summary(capsys, tmp_path, [str(logs)], "settling_taken_out_mm")
     assert note.startswith(f"board settling taken out of {len(moved)} sensor(s)' readings: ")
     assert ", ".join(moved) in note and f"largest move {worst}, {moved[worst]:.2f} mm" in note
-    assert lines[-1].startswith("peakfit: ")
     assert settling_note({}) == ""
     many = {f"S{i}": 0.01 * i for i in range(1, 14)}
     assert "S1, S2, S3, S4, S5, S6, S7, S8, S9, S10, ... (3 more)" in settling_note(
@@ -306,21 +298,29 @@ def test_localize_names_the_sensors_placed_from_their_peaks_flanks(tmp_path, cap
     """A 12 x 3 robot plan leaves gaps wider than a bump: the sensors no touch came near
     are named, with the largest move the other response shapes gave, above the summary
     line; the JSON's params hold every one of them."""
-    logs, path = tmp_path / "logs.csv", tmp_path / "p.json"
+    logs = tmp_path / "logs.csv"
     args = ["simulate", "--patch", "patch_b", "--grid", "12x3", "--probe", "robot"]
     assert main([*args, "--seed", "1", "-o", str(logs)]) == 0
-    capsys.readouterr()
-    assert main(["localize", str(logs), "--patch", "patch_b", "--json", str(path)]) == 0
-    lines = capsys.readouterr().out.strip().splitlines()
-    spread = json.loads(path.read_text())["params"]["shape_spread_mm"]
-    assert spread and all(v > 0 for v in spread.values())
-    worst = max(spread, key=spread.get)
-    note = lines[-2]
+    note, spread, worst = _note_above_summary(
+        capsys, tmp_path, [str(logs), "--patch", "patch_b"], "shape_spread_mm"
+    )
     assert note.startswith(f"{len(spread)} sensor(s) placed from their peaks' flanks, ")
     assert ", ".join(spread) in note
     assert f"other response shapes {worst}, {spread[worst]:.2f} mm" in note
-    assert lines[-1].startswith("peakfit: ")
     assert unseen_note({}) == ""
+
+
+def _note_above_summary(capsys, tmp_path, args, key):
+    """``varskin localize ARGS --json``: the line just above the summary line, the JSON
+    params' ``key`` (sensor: mm, every value > 0) and its sensor of the largest value."""
+    path = tmp_path / "p.json"
+    capsys.readouterr()
+    assert main(["localize", *args, "--json", str(path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1].startswith("peakfit: ")
+    by_sensor = json.loads(path.read_text())["params"][key]
+    assert by_sensor and all(v > 0 for v in by_sensor.values())
+    return lines[-2], by_sensor, max(by_sensor, key=by_sensor.get)
 
 
 def test_localize_first_order_sigma_skips_the_error_bar_check(simulated, tmp_path):

@@ -224,15 +224,12 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
     sd = np.sqrt(sd**2 + loc._shape_shift**2 / 2.0)
     too_loose = (loc._shape_shift > 0) & (sd * judged > loc.params["max_sigma_mm"])
     status[(status == OK) & too_loose] = UNCERTAIN
-    if shift.any():
-        params["settling_taken_out_mm"] = {
-            loc.sensors[i]: round(float(shift[i]), 4) for i in np.flatnonzero(shift)
-        }
-    unseen = np.flatnonzero((loc._shape_shift > 0) & (status == OK))
-    if unseen.size:
-        params["shape_spread_mm"] = {
-            loc.sensors[i]: round(float(loc._shape_shift[i]), 4) for i in unseen
-        }
+    for key, mm, which in (
+        ("settling_taken_out_mm", shift, shift > 0),
+        ("shape_spread_mm", loc._shape_shift, (loc._shape_shift > 0) & (status == OK)),
+    ):
+        if which.any():
+            params[key] = {loc.sensors[i]: round(float(mm[i]), 4) for i in np.flatnonzero(which)}
     sigma = sd * to_sigma
     return status, xy, sigma, snr, params
 
