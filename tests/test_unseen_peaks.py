@@ -10,6 +10,7 @@ import pytest
 
 from varskin.localization import _peak_model as pm
 from varskin.localization import _unseen, localize, peakfit
+from varskin.localization._statuses import SPARSE, judge
 from varskin.planning import uniform_points
 from varskin.pointlogs import PointLog
 from varskin.predictions import OK
@@ -103,7 +104,9 @@ def test_a_touch_on_an_unseen_peak_takes_its_spread_out_of_the_live_error_bar(pa
     assert named
     name = max(named, key=named.get)
     i = logs.sensors.index(name)
-    before = loc._current().by_name()[name]
+    before = loc.result().by_name()[name]
+    # The live view does not call it located until a touch has seen its peak.
+    assert loc._current().by_name()[name].status == SPARSE
     # The next touch lands on that sensor's true position: its peak is seen now.
     x, y = s.truth[i]
     rng = np.random.default_rng(0)
@@ -112,9 +115,47 @@ def test_a_touch_on_an_unseen_peak_takes_its_spread_out_of_the_live_error_bar(pa
     )
     after = loc.update(log)
     assert loc._shape_shift[i] == 0.0
+    assert loc._live_seen[i] >= _unseen.UNSEEN_FRACTION
     assert name not in after.params.get("shape_spread_mm", {})
     # The batch solve of those touches places it from its peak, with a narrow error bar.
     batch = loc.result()
     assert name not in batch.params.get("shape_spread_mm", {})
     assert before.status == OK and batch.by_name()[name].status == OK
     assert batch.by_name()[name].sigma_mm < 0.25 * before.sigma_mm
+
+
+def test_the_live_view_locates_a_sensor_once_a_touch_has_seen_its_peak(patch_b):
+    """Mid-session on a serpentine 20 x 5 plan, a sensor on the part of the patch not yet
+    probed has only its RX wire's ridge in its map, which a bump between the probed columns
+    fits as well as a peak. Over the first 30 touches (robot, seeds 0-2) the live view
+    calls `sparse` most of the `ok` calls of the plain verdict on the same fits that are
+    more than 5 mm off, and keeps nearly all of those within 5 mm; nothing else of the
+    estimates changes. The seen heights the updates keep equal ones computed afresh, and
+    the batch solve is the plain verdict."""
+    far = {"live": 0, "plain": 0}
+    near = {"live": 0, "plain": 0}
+    for seed in range(3):
+        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "robot", seed)
+        logs = s.point_logs()
+        loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
+        for log in list(logs.logs())[:30]:
+            live = loc.update(log)
+            with peakfit._quiet():
+                status, xy, sigma, _, _ = judge(loc)
+            np.testing.assert_array_equal(loc._live_seen, _unseen.seen_height(loc, loc.fit.theta))
+            ok = {"live": np.array([e.status == OK for e in live]), "plain": status == OK}
+            demoted = ok["plain"] & ~ok["live"]
+            assert (ok["live"] <= ok["plain"]).all()
+            assert all(live.estimates[i].status == SPARSE for i in np.flatnonzero(demoted))
+            np.testing.assert_array_equal(live.xy()[ok["live"]], xy[ok["live"]])
+            err = np.hypot(*(xy - s.truth).T)
+            for view, located in ok.items():
+                far[view] += int((located & (err > 5.0)).sum())
+                near[view] += int((located & (err <= 5.0)).sum())
+        batch = loc.result()
+        with peakfit._quiet():
+            plain = judge(loc)[0]
+        assert [e.status for e in batch] == plain.tolist()
+    assert far["plain"] >= 100
+    assert far["live"] <= 0.4 * far["plain"], far
+    assert near["live"] >= 0.95 * near["plain"], near

@@ -14,9 +14,10 @@ import numpy as np
 
 from varskin.localization import _peak_model as pm
 from varskin.localization._maps import nanmedian_cols
+from varskin.localization._statuses import SPARSE, judge
 from varskin.localization._unseen import UNSEEN_FRACTION, seen_height
 from varskin.pointlogs import PointLog
-from varskin.predictions import Predictions
+from varskin.predictions import OK, Predictions
 
 if TYPE_CHECKING:
     from varskin.localization.peakfit import Localizer
@@ -44,7 +45,8 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     The sensors near the new touch are re-fitted, warm-started; then the touch's own
     gain and placement are estimated from those models, and the sensors whose view of
     the touch that changes are re-fitted once more. Every time the session doubles,
-    everything is re-solved from scratch. ``result()`` gives the batch solve.
+    everything is re-solved from scratch. The estimates call a fit `sparse` while no touch
+    has seen half of its peak (``live_judge``). ``result()`` gives the batch solve.
     """
     if not loc._append(log):
         return loc._current()
@@ -130,9 +132,34 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
             sub = np.flatnonzero(pick)
             inputs = tuple(a[sub] if a.ndim == 1 else a[:, sub] for a in first)
         loc._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS, inputs=inputs)
+    # How much of each peak its nearest touch saw: the re-fitted sensors' afresh, and for
+    # the others, whose fits and earlier touches did not move, the new touch may be nearer.
+    seen = seen_height(loc, f.theta[todo], todo) if todo.size else None
+    if loc._live_seen is not None:
+        np.maximum(
+            loc._live_seen, seen_height(loc, f.theta, rows=np.array([k])), out=loc._live_seen
+        )
+        if todo.size:
+            loc._live_seen[todo] = seen
     # A peak this touch came near is seen now; one still unseen keeps the spread the last
     # batch solve measured for it (_unseen.py).
     if todo.size and loc._shape_shift[todo].any():
-        unseen = seen_height(loc, f.theta[todo], todo) < UNSEEN_FRACTION
-        loc._shape_shift[todo] *= unseen
+        loc._shape_shift[todo] *= seen < UNSEEN_FRACTION
     return loc._current()
+
+
+def live_judge(loc: Localizer) -> tuple:
+    """``judge`` for the live view: an `ok` sensor whose fitted peak no touch has seen half
+    of yet (_unseen.seen_height under UNSEEN_FRACTION) is `sparse` there.
+
+    Mid-session, a sensor on a part of the patch not yet probed has only its RX wire's
+    ridge in its map, and a bump between two probed columns fits that as well as a peak
+    does: the live view called such sensors `ok` many millimetres off. The batch solve
+    (``result()``, which the planner and the session's result use) keeps them, with the
+    response shapes' spread in their error bars: a sparse plan needs them located.
+    """
+    status, xy, sigma, snr, params = judge(loc)
+    if loc._live_seen is None:
+        loc._live_seen = seen_height(loc, loc.fit.theta)
+    status[(status == OK) & (loc._live_seen < UNSEEN_FRACTION)] = SPARSE
+    return status, xy, sigma, snr, params

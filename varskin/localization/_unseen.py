@@ -28,20 +28,27 @@ if TYPE_CHECKING:
 UNSEEN_FRACTION = 0.5
 
 
-def seen_height(loc: Localizer, theta: np.ndarray, cols: np.ndarray | None = None) -> np.ndarray:
+def seen_height(
+    loc: Localizer,
+    theta: np.ndarray,
+    cols: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+) -> np.ndarray:
     """How much of each fitted peak a touch has seen: the bump's height at its nearest touch
-    (in the bump's own widths and shape) over its top, for sensors ``cols`` (default all).
-    A clipped reading counts (it saw the top saturate); a missed touch or a non-finite
-    reading does not. ``theta`` holds the sensors' parameters, one row per sensor of
-    ``cols``."""
-    K = loc.n_logs
+    (in the bump's own widths and shape) over its top, for sensors ``cols`` (default all),
+    among touches ``rows`` (default all). A clipped reading counts (it saw the top
+    saturate); a missed touch or a non-finite reading does not. ``theta`` holds the
+    sensors' parameters, one row per sensor of ``cols``."""
     cols = np.arange(len(loc.sensors)) if cols is None else cols
-    if K == 0:
+    # All touches as a slice: a full board's (K, N) readings are not copied for a few columns.
+    rows = slice(0, loc.n_logs) if rows is None else rows
+    P = loc._P[rows] + loc._dxy[rows]
+    if len(P) == 0:
         return np.zeros(cols.size)
-    P = loc._P[:K] + loc._dxy[:K]
     q = (P[:, 0:1] - theta[None, :, pm.SX]) ** 2 * np.exp(-2.0 * theta[None, :, pm.LW])
     q += (P[:, 1:2] - theta[None, :, pm.SY]) ** 2 * np.exp(-2.0 * theta[None, :, pm.LWY])
-    q[~np.isfinite(loc._V[:K, cols]) | loc._missed[:K, None]] = np.inf
+    V = loc._V[rows, cols] if isinstance(rows, slice) else loc._V[rows][:, cols]
+    q[~np.isfinite(V) | loc._missed[rows, None]] = np.inf
     with np.errstate(invalid="ignore"):
         return np.nan_to_num(pm.profile(q.min(axis=0), 0.0, loc.settings.shape))
 

@@ -32,7 +32,7 @@ from varskin.localization._error_bar import sigma_scale
 from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
 from varskin.localization._layout_prior import design_scatter_mm
-from varskin.localization._live_update import update
+from varskin.localization._live_update import live_judge, update
 from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
 from varskin.localization._shape_screen import favoured_shape
@@ -349,6 +349,10 @@ class Localizer:
         # Per sensor whose peak no touch came near: how far the model's other response
         # shapes move its fit (mm; _unseen.shape_spread), a part of its error bar.
         self._shape_shift = np.zeros(n)
+        # Per sensor: how much of its fitted peak its nearest touch saw (_unseen.seen_height),
+        # kept by the live updates for the live view's verdict (_live_update.live_judge);
+        # None: to compute afresh (a batch solve moved every fit).
+        self._live_seen: np.ndarray | None = None
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -888,6 +892,7 @@ class Localizer:
         # sessions the error-bar check simulates: both know their shape.
         if calibrate and self._fixed_shape is None:
             shape_spread(self)
+        self._live_seen = None
         self._dirty = False
 
     def _solve_once(self, screen: bool) -> None:
@@ -1046,7 +1051,7 @@ class Localizer:
             return update(self, log)
 
     def _current(self) -> Predictions:
-        return _predictions(self)
+        return _build(self, *live_judge(self))
 
     # --- results -----------------------------------------------------------------------
 
