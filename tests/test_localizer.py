@@ -17,6 +17,7 @@ from varskin.localization import (
     _error_bar,
     _hull,
     _maps,
+    _peak_model,
     _shape_screen,
     _statuses,
     _unseen,
@@ -609,6 +610,48 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
         got = _maps.nanmedian_cols(a)
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)
+
+
+def test_the_window_of_a_full_board_equals_the_plain_taper_bit_for_bit():
+    """A full board's fit window skips the distance and the cosine where the squared distance
+    says the taper is 1 or 0; it must give the plain formula's values exactly: points on
+    and a hair either side of R and 1.5 R, NaN and infinite positions, a zero radius."""
+    rng = np.random.default_rng(5)
+    s = _peak_model.FitSettings()
+    S = 300
+    theta = np.zeros((S, _peak_model.N_PARAMS))
+    theta[:, :2] = rng.uniform(0.0, 100.0, (S, 2))
+    theta[:, _peak_model.LW] = theta[:, _peak_model.LWY] = np.log(rng.uniform(1.0, 8.0, S))
+    radius = np.maximum(s.window_widths * _peak_model.half_width(theta), 4.0)
+    M = 40
+    ang = rng.uniform(0.0, 2 * np.pi, (M, S))
+    # Distances in units of R: a spread, and exactly at and one ulp around 1 and 1.5.
+    f = rng.uniform(0.0, 2.0, (M, S))
+    edges = np.array([1.0, 1.5])
+    f[:8] = np.concatenate([edges, np.nextafter(edges, 0), np.nextafter(edges, 3), [0.0, 3.0]])[
+        :, None
+    ]
+    P = theta[None, :, :2] + (f * radius)[..., None] * np.stack([np.cos(ang), np.sin(ang)], -1)
+    P[8, :5] = np.nan
+    P[9, :5] = np.inf
+    P[10, :5, 0] = -np.inf
+    assert P[..., 0].size >= _peak_model._TAPER_ONLY_SIZE
+    got = _peak_model.window(P, theta, 4.0, s)
+    X, Y = P[..., 0], P[..., 1]
+    d = np.hypot(X - theta[:, 0], Y - theta[:, 1])
+    u = np.minimum(np.maximum((d / radius - 1.0) * 2.0, 0.0), 1.0)
+    want = 0.5 * (1.0 + np.cos(np.pi * u))
+    np.testing.assert_array_equal(got, want)
+    assert 0.0 < np.mean((want > 0) & (want < 1)) < 0.8
+    # A zero radius: every point but the peak itself is beyond the taper; the peak is 0/0.
+    flat = theta.copy()
+    flat[:, _peak_model.LW] = flat[:, _peak_model.LWY] = -np.inf
+    P[11] = flat[:, :2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        got = _peak_model.window(P, flat, 0.0, s)
+        d = np.hypot(X - flat[:, 0], Y - flat[:, 1])
+        want = 0.5 * (1.0 + np.cos(np.pi * np.minimum(np.maximum((d / 0.0 - 1.0) * 2.0, 0.0), 1.0)))
+    np.testing.assert_array_equal(got, want)
 
 
 def test_layout_prior_ignores_a_sensor_without_a_coordinate():
