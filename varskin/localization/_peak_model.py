@@ -139,11 +139,7 @@ def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) 
     X, Y = _xy(P)
     dx, dy = X - theta[..., SX], Y - theta[..., SY]
     if dx.size < _TAPER_ONLY_SIZE:
-        d = np.hypot(dx, dy)
-        # minimum/maximum, not np.clip: the same values at a fraction of the call overhead.
-        return 0.5 * (
-            1.0 + np.cos(np.pi * np.minimum(np.maximum((d / radius - 1.0) * 2.0, 0.0), 1.0))
-        )
+        return _taper(np.hypot(dx, dy), radius)
     # Most of a full board's (M, S) points lie well inside R or well beyond 1.5 R, where the
     # taper is exactly 1 or 0 (cos 0 = 1 and cos pi = -1 in floating point too), and the
     # squared distance, with a margin far above its rounding error, says which: the
@@ -153,10 +149,16 @@ def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) 
     inner = q < r2 * (1.0 - 1e-9)
     mid = ~inner & ~(q > r2 * (2.25 * (1.0 + 1e-9)))  # NaN too: it stays NaN
     out = inner.astype(float)
-    d = np.hypot(dx[mid], dy[mid])
-    u = np.minimum(np.maximum((d / np.broadcast_to(radius, q.shape)[mid] - 1.0) * 2.0, 0.0), 1.0)
-    out[mid] = 0.5 * (1.0 + np.cos(np.pi * u))
+    out[mid] = _taper(np.hypot(dx[mid], dy[mid]), np.broadcast_to(radius, q.shape)[mid])
     return out
+
+
+def _taper(d: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The window's weight at distances ``d`` from the peak: 1 up to ``radius`` R, a cosine
+    down to 0 at 1.5 R, 0 beyond."""
+    # minimum/maximum, not np.clip: the same values at a fraction of the call overhead.
+    u = np.minimum(np.maximum((d / radius - 1.0) * 2.0, 0.0), 1.0)
+    return 0.5 * (1.0 + np.cos(np.pi * u))
 
 
 def ridges(P, theta, rho, d=None):
