@@ -6,6 +6,7 @@ Seeded simulated scenes only; the accuracy targets are the issue's (robot 5x20 g
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -757,6 +758,37 @@ def test_live_update_restarts_a_sensor_whose_peak_turns_up_away_from_its_fit(pat
     gap = np.hypot(*(live.xy() - batch.xy()).T)[both]
     sig = np.array([p.sigma_mm for p, ok in zip(live, both, strict=True) if ok])
     assert gap.max() <= 2.0 and np.all(gap <= 2.0 * sig), (gap.max(), (gap / sig).max())
+
+
+def test_a_live_update_refits_with_the_next_touch_the_sensors_its_placement_moved(patch_b):
+    """Finger, Patch B: once a live update has estimated where its touch landed and how hard
+    it pressed, the sensors whose view of that touch this changes are re-fitted with the
+    next touch, even where that touch lands far from them; a full re-solve needs none."""
+    logs = session(patch_b, "finger", 0).point_logs()
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
+    found = cleared = 0
+    for log in logs.logs():
+        flagged = np.flatnonzero(loc._refit_next)
+        if loc._k + 1 >= loc._next_full:  # this update re-solves everything
+            loc.update(log)
+            assert not loc._refit_next.any()
+            cleared += flagged.size
+        elif flagged.size:
+            plain = copy.deepcopy(loc)
+            plain._refit_next[:] = False
+            before = loc.fit.theta[flagged].copy()
+            loc.update(log)
+            plain.update(log)
+            # Sensors the new touch alone would not have re-fitted (their fit is the same
+            # in the copy without the flags) moved because of the flag.
+            alone = (plain.fit.theta[flagged] == before).all(axis=1)
+            moved = (loc.fit.theta[flagged] != before).any(axis=1)
+            assert np.all(moved[alone]), flagged[alone & ~moved]
+            found += int(alone.sum())
+        else:
+            loc.update(log)
+    assert found >= 3, found  # 6 on this scene
+    assert cleared, "no re-solve came after an update that flagged sensors"
 
 
 def test_the_live_probe_hull_equals_the_hull_of_all_probes(patch_b):

@@ -28,9 +28,6 @@ if TYPE_CHECKING:
 # against 0.82-0.87 mm finger), 0.3-0.5 fewer of ~17 sensors are `ok`, and the last
 # update's largest gap to the batch is about the same (1.1-1.6 sigma either way).
 UPDATE_ITERATIONS = 3
-# ... and of the second, shorter pass after the touch's own gain and placement are known:
-# it starts from the first pass's fit and moves it by a fraction of a millimetre.
-REFIT_ITERATIONS = 2
 # A reading this far above a sensor's last RECENT_TOUCHES readings, beyond what its model's
 # bump predicts at a touch outside its window (in the map's heights, and in residual
 # sigmas), makes a live update restart that sensor from its map's top.
@@ -44,7 +41,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
 
     The sensors near the new touch are re-fitted, warm-started; then the touch's own
     gain and placement are estimated from those models, and the sensors whose view of
-    the touch that changes are re-fitted once more. Every time the session doubles,
+    the touch that changes are re-fitted with the next touch. Every time the session doubles,
     everything is re-solved from scratch. The estimates call a fit `sparse` while no touch
     has seen half of its peak (``live_judge``). ``result()`` gives the batch solve.
     """
@@ -101,20 +98,22 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
             & ~near
             & f.fitted
         )
-    # One pass over both: a restarted sensor begins at its map's top (a good start) and
+    # One pass over both, and over the sensors the last touch's gain and placement left
+    # for this one (below): a restarted sensor begins at its map's top (a good start) and
     # the following updates refine it, so a few iterations suffice here too.
-    todo = np.flatnonzero(near | new_top)
+    todo = np.flatnonzero(near | new_top | loc._refit_next)
     # The last batch solve's settling verdict judged maps these sensors have outgrown.
     loc._moved_by_settling[todo] = False
-    first = None
     if todo.size:
-        first = loc._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
+        loc._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
     # The new touch's own gain and placement come from the models it has just updated
     # (judged by models that had not seen it, a first touch near a sensor would be
-    # "explained" by a wrong offset), then those sensors take one more short pass.
+    # "explained" by a wrong offset).
     loc._touch_nuisances(np.array([k]))
-    # Only where the estimated gain and placement change what the touch says (a robot's
-    # placement is good to ~0.05 mm: usually nowhere) is the second pass worth its cost.
+    # Where they change what the touch says (a robot's placement is good to ~0.05 mm:
+    # usually nowhere), the sensor is re-fitted with the next touch rather than in a
+    # second pass now: that pass cost a whole fit on most of a finger's updates, and
+    # waiting one touch leaves the live view as good (docs/benchmarks.md, session 57).
     th = f.theta[todo]
     rho = loc._ridge_width(todo.size, th)
     zero = np.zeros((1, todo.size))
@@ -122,16 +121,8 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     m1 = pm.model(
         loc._P[k : k + 1] + loc._dxy[k], zero, th, np.exp(loc._lg[k : k + 1]), rho, shape
     )[0]
-    pick = np.abs(m1 - m0) > np.maximum(f.scale[todo], 1e-12)
-    redo = todo[pick]
-    if redo.size:
-        # The same maps as the first pass, unless the touch was just judged missed
-        # (which changes what is valid); per-sensor columns, so a subset is a slice.
-        inputs = None
-        if first is not None and not loc._missed[k]:
-            sub = np.flatnonzero(pick)
-            inputs = tuple(a[sub] if a.ndim == 1 else a[:, sub] for a in first)
-        loc._solve(redo, np.ones(redo.size, bool), max_iter=REFIT_ITERATIONS, inputs=inputs)
+    loc._refit_next[:] = False
+    loc._refit_next[todo] = np.abs(m1 - m0) > np.maximum(f.scale[todo], 1e-12)
     # How much of each peak its nearest touch saw: the re-fitted sensors' afresh, and for
     # the others, whose fits and earlier touches did not move, the new touch may be nearer.
     seen = seen_height(loc, f.theta[todo], todo) if todo.size else None

@@ -353,6 +353,10 @@ class Localizer:
         # kept by the live updates for the live view's verdict (_live_update.live_judge);
         # None: to compute afresh (a batch solve moved every fit).
         self._live_seen: np.ndarray | None = None
+        # Per sensor: the last live update's estimate of its touch's gain and placement
+        # changed what that touch says to this sensor's model, so the next update re-fits
+        # it too (_live_update.update).
+        self._refit_next = np.zeros(n, bool)
         self.fit = _SensorFit(
             theta=np.zeros((n, pm.N_PARAMS)),
             floor=np.zeros(n),
@@ -542,22 +546,14 @@ class Localizer:
         cols: np.ndarray,
         warm: np.ndarray,
         max_iter: int | None = None,
-        inputs: tuple | None = None,
-    ) -> tuple | None:
-        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit.
-
-        ``inputs``: ``_map_inputs(cols)`` if the caller already has them (the second pass of
-        a live update fits a subset of the first's sensors on the same maps). Returns the
-        inputs used.
-        """
+    ) -> None:
+        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit."""
         K = self._k
         if cols.size == 0 or K == 0:
-            return None
+            return
         P = self._P[:K] + self._dxy[:K]
         tau = self._tau()
-        if inputs is None:
-            inputs = self._map_inputs(cols)
-        clipped, U, D, valid, floor, amp, noise = inputs
+        clipped, U, D, valid, floor, amp, noise = self._map_inputs(cols)
         f = self.fit
         h = self.spacing()
         min_radius = self.settings.window_spacings * h
@@ -625,7 +621,6 @@ class Localizer:
         f.start[cols] = start
         f.n_clipped[cols] = clipped.sum(axis=0)
         f.tc[cols] = tc
-        return inputs
 
     def _initial(self, P, U, valid, h, need: np.ndarray | None = None) -> np.ndarray:
         """Cold start: centre of the map's top, width by a small search, floor and height.
@@ -893,6 +888,7 @@ class Localizer:
         if calibrate and self._fixed_shape is None:
             shape_spread(self)
         self._live_seen = None
+        self._refit_next[:] = False
         self._dirty = False
 
     def _solve_once(self, screen: bool) -> None:
