@@ -11,7 +11,9 @@ pinned to 1 before numpy loads. Reports medians of repeated runs:
   by tracemalloc), and the time of one live ``Localizer.update`` after 1,000 logs (target
   <= 20 ms);
 * Patch B (30 sensors) with 100 point logs, robot and finger, with the layout prior as
-  ``varskin calibrate`` runs it: one ``update`` (target <= 5 ms) and the batch solve;
+  ``varskin calibrate`` runs it: one ``update`` (target <= 5 ms) and the batch solve, and
+  the paper method (eta 0.65, 128 ppcm) on the same logs in the same run, so the ratios
+  hold on any machine (this VM's speed varies from day to day);
 * a whole live session (board and Patch B): every update timed from the first log, the
   periodic full re-solves included (median, amortized mean, max), and the distance of the
   last update's own estimates from the batch solve.
@@ -37,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from varskin.localization import peakfit
+from varskin.localization import paper, peakfit
 from varskin.patch import builtin_patch, patch_from_dict
 from varskin.pointlog_csv import write_point_logs_csv
 from varskin.predictions import OK
@@ -97,6 +99,16 @@ def batch_times(logs, repeats: int, **params) -> tuple:
         peakfit.localize(logs, calibrate_sigma=False, **params)
         first.append(time.perf_counter() - t0)
     return pred, checked, first
+
+
+def paper_times(logs, repeats: int) -> list[float]:
+    """The paper method's batch solve times (s) on the same logs: the reference."""
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        paper.localize(logs)
+        times.append(time.perf_counter() - t0)
+    return times
 
 
 def live_update_ms(logs, n_warm: int, n_timed: int, **params) -> list[float]:
@@ -189,12 +201,18 @@ def main() -> int:
         for _ in range(args.repeats):
             upd += live_update_ms(logs, 80, 20, patch=patch)
         _, t, first = batch_times(logs, args.repeats, patch=patch)
+        ref = paper_times(logs, args.repeats)
         print(
             f"Patch B {probe}: 30 sensors x 100 point logs, layout prior: live update "
             f"median {statistics.median(upd):.1f} ms, max {max(upd):.1f} ms over {len(upd)} "
             f"(target <= 5 ms); batch solve median {1000 * statistics.median(t):.0f} ms, "
             f"without the error-bar check {1000 * statistics.median(first):.0f} ms "
             f"({statistics.median(t) / statistics.median(first):.1f}x)"
+        )
+        print(
+            f"  the paper method on the same logs: median {1000 * statistics.median(ref):.0f} "
+            f"ms; one update is {statistics.median(upd) / (1000 * statistics.median(ref)):.4f}x "
+            f"that, the batch solve {statistics.median(t) / statistics.median(ref):.2f}x"
         )
         print_session(f"Patch B {probe}", *live_session(logs, patch=patch))
     return 0
