@@ -12,8 +12,8 @@ pinned to 1 before numpy loads. Reports medians of repeated runs:
   <= 20 ms);
 * Patch B (30 sensors) with 100 point logs, robot and finger, with the layout prior as
   ``varskin calibrate`` runs it: one ``update`` (target <= 5 ms) and the batch solve, and
-  the paper method (eta 0.65, 128 ppcm) on the same logs in the same run, so the ratios
-  hold on any machine (this VM's speed varies from day to day);
+  the paper method (eta 0.65, 128 ppcm) on the same logs in the same run, so that each
+  run says how fast its machine was (this VM's speed varies from day to day);
 * a whole live session (board and Patch B): every update timed from the first log, the
   periodic full re-solves included (median, amortized mean, max), and the distance of the
   last update's own estimates from the batch solve.
