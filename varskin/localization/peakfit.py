@@ -530,17 +530,6 @@ class Localizer:
 
     # --- solving -----------------------------------------------------------------------
 
-    def _map_inputs(self, cols: np.ndarray) -> tuple:
-        """What a fit of sensors ``cols`` takes from their maps: (clipped, U, D, valid,
-        floor, amp, noise), every array with one column (or entry) per sensor."""
-        K = self._k
-        clipped = self._clipped(cols)
-        U, D, valid, floor, amp = self._maps(cols, clipped)
-        with np.errstate(all="ignore"):
-            noise = nanmedian_cols(self._noise[:K][:, cols]) / amp
-        noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
-        return clipped, U, D, valid, floor, amp, noise
-
     def _solve(
         self,
         cols: np.ndarray,
@@ -553,7 +542,11 @@ class Localizer:
             return
         P = self._P[:K] + self._dxy[:K]
         tau = self._tau()
-        clipped, U, D, valid, floor, amp, noise = self._map_inputs(cols)
+        clipped = self._clipped(cols)
+        U, D, valid, floor, amp = self._maps(cols, clipped)
+        with np.errstate(all="ignore"):
+            noise = nanmedian_cols(self._noise[:K][:, cols]) / amp
+        noise = np.where(np.isfinite(noise) & (noise > 0), noise, 0.0)
         f = self.fit
         h = self.spacing()
         min_radius = self.settings.window_spacings * h
