@@ -791,6 +791,40 @@ def test_a_live_update_refits_with_the_next_touch_the_sensors_its_placement_move
     assert cleared, "no re-solve came after an update that flagged sensors"
 
 
+def test_a_robot_touch_s_gain_and_placement_stop_iterating_once_settled(patch_b, monkeypatch):
+    """A live update estimates its touch's gain and placement in up to three Gauss-Newton
+    steps, and stops once a step is under NUISANCE_STEP_TOL of the priors' sds: a robot's
+    touch is often there after two. What the stop leaves out must not show: the estimates
+    equal all three steps' to a small part of the tolerance."""
+    from varskin.localization import _live_update
+
+    logs = session(patch_b, "robot", 0).point_logs()
+    all_logs = list(logs.logs())
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
+    for log in all_logs[:60]:
+        loc.update(log)
+    steps = []
+    jacobian = _peak_model.jacobian
+    monkeypatch.setattr(
+        _peak_model, "jacobian", lambda *a, **k: steps.append(1) or jacobian(*a, **k)
+    )
+    stopped = 0
+    for log in all_logs[60:80]:
+        loc._append(log)
+        k = np.array([loc._k - 1])
+        full = copy.deepcopy(loc)
+        steps.clear()
+        loc._touch_nuisances(k, step_tol=_live_update.NUISANCE_STEP_TOL)
+        early = len(steps)
+        steps.clear()
+        full._touch_nuisances(k)
+        stopped += early < len(steps)
+        assert abs(loc._lg[k] - full._lg[k]).max() <= 1e-3 * loc.gain_sd
+        assert abs(loc._dxy[k] - full._dxy[k]).max() <= 1e-3 * loc.place_sd_mm
+        assert not np.isnan(loc._v_d[k]).any()
+    assert stopped >= 5, stopped  # of 20 touches: 9 on this scene
+
+
 def test_the_live_probe_hull_equals_the_hull_of_all_probes(patch_b):
     """The live view keeps the probes' hull across updates (corners plus new touches);
     it must be the hull a fresh solve computes, in any arrival order, and probes on one

@@ -354,7 +354,7 @@ def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: in
     dof = np.maximum(count - n_cols, 1)
     v_mean = (v * mask).sum(axis=1) / np.maximum(count, 1)
     # The weighted sums of every iteration as one product: (G, M, 5) terms of the normal
-    # equations (a live update runs ten of these iterations per touch).
+    # equations (a live update runs up to ten of these iterations per touch).
     terms = np.stack([np.ones_like(c), tc, tc * tc, c, tc * c], axis=-1)
     for _ in range(iterations):
         w = np.where(mask, 1.0 / (v + tau2[:, None]), 0.0)
@@ -363,7 +363,12 @@ def _scatter_rows(c, v, tc, mask, count, n_cols, floor_mm: float, iterations: in
         b0, b1 = i00 * swc + i01 * swtc, i01 * swc + i11 * swtc
         resid = np.where(mask, c - b0[:, None] - b1[:, None] * tc, 0.0)
         new = np.maximum(floor_mm**2, np.einsum("gm,gm->g", resid, resid) / dof - v_mean)
-        tau2 = np.where(fits, new, tau2)
+        new = np.where(fits, new, tau2)
+        # A fixed point (most often every wire at the floor scatter) stays one: the
+        # remaining iterations would repeat this one exactly.
+        if np.array_equal(new, tau2):
+            break
+        tau2 = new
     return tau2
 
 

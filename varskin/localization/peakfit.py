@@ -683,13 +683,14 @@ class Localizer:
         return theta
 
     def _touch_nuisances(
-        self, rows: np.ndarray, relax: float = 1.0
+        self, rows: np.ndarray, relax: float = 1.0, step_tol: float = 0.0
     ) -> tuple[np.ndarray, np.ndarray]:
         """Re-estimate gain and placement offset of touches ``rows`` from the sensor models.
 
         Every sensor that sees a touch says something about how hard and where it landed;
         pooled over sensors (Gauss-Newton with Gaussian priors of the current scales) they
-        pin the touch down; ``relax`` > 1 stretches the step from their previous estimate.
+        pin the touch down; ``relax`` > 1 stretches the step from their previous estimate;
+        the iterations stop early once every step is under ``step_tol`` prior sds.
         Returns the posterior variances (log gain, mean axis mm^2).
         """
         f = self.fit
@@ -758,6 +759,8 @@ class Localizer:
             lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), *pm.LOG_GAIN_RANGE)
             lim = pm.offset_limit(self.place_sd_mm)
             d = np.clip(d + np.clip(step[:, 1:], -lim, lim), -lim, lim)
+            if step_tol and (np.abs(step) < step_tol * np.sqrt(1.0 / prior)).all():
+                break
         try:
             cov = np.linalg.inv(H)
         except np.linalg.LinAlgError:
