@@ -613,6 +613,67 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)
 
 
+def test_the_fit_s_groups_partition_the_sensors_at_the_least_padded_cost():
+    """``_reach_groups`` splits sensors by their touches within reach: every sensor in one
+    group exactly once, and the split the exact optimum over every way to cut the sorted
+    counts into at most GROUPS_MAX runs (brute force here)."""
+    import itertools
+
+    cost_of = _peak_model.GROUP_COST
+    rng = np.random.default_rng(3)
+    for S in (2, 5, 12):
+        for _ in range(20):
+            counts = rng.integers(0, 3000, S)
+            groups = _peak_model._reach_groups(counts)
+            assert 1 <= len(groups) <= _peak_model.GROUPS_MAX
+            np.testing.assert_array_equal(np.sort(np.concatenate(groups)), np.arange(S))
+            got = sum(g.size * counts[g].max() + cost_of for g in groups)
+            c = np.sort(counts)
+            best = min(
+                sum((b - a) * c[b - 1] + cost_of for a, b in itertools.pairwise((0, *cuts, S)))
+                for n in range(_peak_model.GROUPS_MAX)
+                for cuts in itertools.combinations(range(1, S), n)
+            )
+            assert got == best
+    # Alike neighbourhoods, or little to gain: one group, and no copies.
+    assert len(_peak_model._reach_groups(np.full(300, 150))) == 1
+    assert len(_peak_model._reach_groups(np.array([10, 20, 30]))) == 1
+
+
+def test_a_fit_in_groups_equals_the_fit_of_all_sensors_at_once(patch_b, monkeypatch):
+    """The sensors' fits are independent, so fitting them in groups of similar reach (as a
+    full board does) changes nothing but the rounding: forced into groups on Patch B, the
+    batch solve gives the same statuses, and positions and sigmas within 1e-9 mm."""
+    logs = session(patch_b, "robot", 0).point_logs()
+    monkeypatch.setattr(_peak_model, "GROUPS_MAX", 1)
+    whole = localize(logs, patch=patch_b)
+    calls = {"fit": 0, "group": 0}
+    fit_group = _peak_model._fit_group
+
+    def counted(*args, **kwargs):
+        calls["group"] += 1
+        return fit_group(*args, **kwargs)
+
+    fit = _peak_model.fit
+
+    def counted_fit(*args, **kwargs):
+        calls["fit"] += 1
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(_peak_model, "_fit_group", counted)
+    monkeypatch.setattr(_peak_model, "fit", counted_fit)
+    monkeypatch.setattr(_peak_model, "GROUPS_MAX", 4)
+    monkeypatch.setattr(_peak_model, "GROUP_COST", 0)
+    grouped = localize(logs, patch=patch_b)
+    assert calls["group"] > 2 * calls["fit"] > 0
+    assert [e.status for e in grouped] == [e.status for e in whole]
+    assert sum(e.status == OK for e in whole) >= 25
+    np.testing.assert_allclose(grouped.xy(), whole.xy(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        [e.sigma_mm or 0.0 for e in grouped], [e.sigma_mm or 0.0 for e in whole], rtol=0, atol=1e-9
+    )
+
+
 def test_the_window_of_a_full_board_equals_the_plain_taper_bit_for_bit():
     """A full board's fit window skips the distance and the cosine where the squared distance
     says the taper is 1 or 0; it must give the plain formula's values exactly: points on

@@ -29,6 +29,8 @@ from them, mean the same in all three.
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +55,11 @@ RIDGE_FRACTION = 0.35  # a wire ridge's width across the wire, in footprint half
 # and 1. Below it the masks cost more than the cosines they save: a third more at 400
 # points (a live update's fit), a quarter less at 3,000 (a one-off micro-benchmark).
 _TAPER_ONLY_SIZE = 2048
+# A fit's sensors are split into at most this many groups of similar neighbourhood size, a
+# group's call overhead counted as this many (touch, sensor) points of array work
+# (_reach_groups; docs/benchmarks.md, "The fit's sensors in groups").
+GROUPS_MAX = 4
+GROUP_COST = 4000
 
 
 def offset_limit(place_sd_mm: float) -> float:
@@ -334,25 +341,142 @@ def fit(
 
     P (K,2) probe mm, tau (K,S) minutes from each sensor's peak time, U (K,S) normalized values (peak up, floor ~0),
     valid (K,S) bool, theta0 (S,6) start, noise_floor (S,) smallest residual sigma allowed.
+
+    Each sensor's fit is its own: the sensors are solved in a few groups of similar
+    neighbourhood size (``_reach_groups``), so that a group's arrays are not padded to the
+    largest neighbourhood of all.
     """
-    s = settings
+    inside = _inside(P, valid, theta0, min_radius, settings)
+    groups = _reach_groups(inside.sum(axis=0))
+    if len(groups) == 1:
+        return _fit_group(
+            P, tau, U, theta0, min_radius, noise_floor, settings,
+            gain, width_mean, ridge_width, touch_var, scale0, inside,
+        )  # fmt: skip
     S = U.shape[1]
+    out = FitResult(
+        theta=np.empty((S, N_PARAMS)),
+        cov_xy=np.empty((S, 2, 2)),
+        scale=np.empty(S),
+        n_eff=np.empty(S),
+        converged=np.empty(S, bool),
+        last_step=np.empty(S),
+        var_touch=np.empty(S),
+    )
+    for g in groups:
+        part = _fit_group(
+            P,
+            tau[:, g],
+            U[:, g],
+            theta0[g],
+            min_radius,
+            noise_floor[g],
+            settings,
+            gain,
+            None if width_mean is None else width_mean[g],
+            None if ridge_width is None else ridge_width[g],
+            touch_var,
+            None if scale0 is None else scale0[g],
+            inside[:, g],
+        )
+        for field in dataclasses.fields(FitResult):
+            getattr(out, field.name)[g] = getattr(part, field.name)
+    return out
+
+
+def _width_range(min_radius: float, s: FitSettings) -> tuple[float, float]:
+    """The log half widths a fit may take: from MIN to MAX_WIDTH_SPACINGS probe spacings."""
     spacing = min_radius / s.window_spacings
+    return np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
+
+
+def _clipped_start(theta0: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
+    """The start with its log widths within the range a fit may take."""
     theta = theta0.astype(float).copy()
-    lw_lo, lw_hi = np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
-    theta[:, WIDTHS] = np.clip(theta[:, WIDTHS], lw_lo, lw_hi)
+    theta[:, WIDTHS] = np.clip(theta[:, WIDTHS], *_width_range(min_radius, s))
+    return theta
+
+
+def _reach(theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
+    """How far (mm) from its start a fit can need touches: the window (1.5 R) of a
+    footprint up to 1.4x wider than the start, plus room to move."""
+    w0 = half_width(theta)
+    return 1.5 * np.maximum(s.window_widths * w0 * 1.4, min_radius) + 0.5 * np.maximum(
+        s.window_widths * w0, min_radius
+    )
+
+
+def _inside(P, valid, theta0, min_radius: float, s: FitSettings) -> np.ndarray:
+    """(K, S): the valid touches within each fit's reach, the only ones that can carry
+    weight (the window is compact)."""
+    theta = _clipped_start(theta0, min_radius, s)
+    dist = np.hypot(P[:, 0:1] - theta[..., SX], P[:, 1:2] - theta[..., SY])
+    return (dist <= _reach(theta, min_radius, s)[None, :]) & valid
+
+
+def _reach_groups(counts: np.ndarray) -> list[np.ndarray]:
+    """Split the sensors into at most GROUPS_MAX groups whose padded (touches x sensors)
+    arrays, plus GROUP_COST points for each group's own call overhead, are the fewest.
+
+    ``counts`` (S,) is each sensor's number of touches within reach. One group pads every
+    sensor to the largest count: on a full board's robot grid that is 150 touches for a
+    median of 84, and 380 for 142 at the cold start (docs/benchmarks.md, "The fit's
+    sensors in groups"). The groups are contiguous runs of the sensors sorted by count
+    (the best split has that form), chosen exactly by dynamic programming.
+    """
+    S = counts.size
+    if S < 2:
+        return [np.arange(S)]
+    c = np.sort(counts)
+    if S * int(c[-1]) - int(c.sum()) <= GROUP_COST:
+        return [np.arange(S)]
+    order = np.argsort(counts, kind="stable")
+    i = np.arange(S + 1)[:, None]
+    j = np.arange(S + 1)[None, :]
+    # cost[i, j]: the sorted sensors i .. j-1 as one group, padded to the largest, c[j-1].
+    # An empty group costs infinitely much, so none is chosen.
+    cost = np.where(j > i, (j - i) * c[np.maximum(j - 1, 0)] + GROUP_COST, np.inf)
+    best = [cost[0]]  # best[g][j]: the first j sensors in g + 1 groups
+    split = []
+    for _ in range(1, GROUPS_MAX):
+        total = best[-1][:, None] + cost
+        arg = np.argmin(total, axis=0)
+        split.append(arg)
+        best.append(total[arg, np.arange(S + 1)])
+    n = int(np.argmin([b[S] for b in best]))
+    ends = [S]
+    for g in range(n, 0, -1):
+        ends.append(int(split[g - 1][ends[-1]]))
+    ends.append(0)
+    ends = ends[::-1]
+    return [np.sort(order[a:b]) for a, b in itertools.pairwise(ends)]
+
+
+def _fit_group(
+    P: np.ndarray,
+    tau: np.ndarray,
+    U: np.ndarray,
+    theta0: np.ndarray,
+    min_radius: float,
+    noise_floor: np.ndarray,
+    s: FitSettings,
+    gain: np.ndarray | None,
+    width_mean: np.ndarray | None,
+    ridge_width: np.ndarray | None,
+    touch_var: tuple[np.ndarray, np.ndarray] | None,
+    scale0: np.ndarray | None,
+    inside: np.ndarray,
+) -> FitResult:
+    """``fit`` of one group of sensors, its touches within reach ``inside`` (K, S)."""
+    S = U.shape[1]
+    theta = _clipped_start(theta0, min_radius, s)
+    lw_lo, lw_hi = _width_range(min_radius, s)
     lw_prior = 0.5 * (theta0[:, LW] + theta0[:, LWY])
     K = U.shape[0]
     G_all = np.ones(K) if gain is None else gain
     # Only the touches near each sensor can carry weight (the window is compact): gather
     # them into (M, S) arrays so a full board costs what its neighbourhoods cost.
-    w0 = half_width(theta)
-    # Window (1.5 R) of a footprint up to 1.4x wider than the start, plus room to move.
-    reach = 1.5 * np.maximum(s.window_widths * w0 * 1.4, min_radius) + 0.5 * np.maximum(
-        s.window_widths * w0, min_radius
-    )
-    dist = np.hypot(P[:, 0:1] - theta[..., SX], P[:, 1:2] - theta[..., SY])
-    inside = (dist <= reach[None, :]) & valid
+    reach = _reach(theta, min_radius, s)
     M = max(int(inside.sum(axis=0).max()), 1)
     order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
     sel = np.take_along_axis(inside, order, axis=0)
