@@ -616,7 +616,7 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
 def test_the_fit_s_groups_partition_the_sensors_at_the_least_padded_cost():
     """``_reach_groups`` splits sensors by their touches within reach: every sensor in one
     group exactly once, and the split the exact optimum over every way to cut the sorted
-    counts into at most GROUPS_MAX runs (brute force here)."""
+    counts into at most GROUPS_MAX runs (brute force here); on a large board, near it."""
     import itertools
 
     cost_of = _peak_model.GROUP_COST
@@ -635,6 +635,14 @@ def test_the_fit_s_groups_partition_the_sensors_at_the_least_padded_cost():
                 for cuts in itertools.combinations(range(1, S), n)
             )
             assert got == best
+    # Beyond GROUP_CUTS sensors the cuts lie at quantiles: still a partition, and far less
+    # padding than one group.
+    counts = rng.integers(10, 400, 20 * _peak_model.GROUP_CUTS)
+    groups = _peak_model._reach_groups(counts)
+    np.testing.assert_array_equal(np.sort(np.concatenate(groups)), np.arange(counts.size))
+    padded = sum(g.size * counts[g].max() for g in groups)
+    assert len(groups) == _peak_model.GROUPS_MAX
+    assert padded < 0.7 * counts.size * counts.max()
     # Alike neighbourhoods, or little to gain: one group, and no copies.
     assert len(_peak_model._reach_groups(np.full(300, 150))) == 1
     assert len(_peak_model._reach_groups(np.array([10, 20, 30]))) == 1

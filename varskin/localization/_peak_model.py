@@ -60,6 +60,7 @@ _TAPER_ONLY_SIZE = 2048
 # (_reach_groups; docs/benchmarks.md, "The fit's sensors in groups").
 GROUPS_MAX = 4
 GROUP_COST = 4000
+GROUP_CUTS = 256  # where the groups may be cut: exactly up to this many sensors
 
 
 def offset_limit(place_sd_mm: float) -> float:
@@ -422,7 +423,9 @@ def _reach_groups(counts: np.ndarray) -> list[np.ndarray]:
     sensor to the largest count: on a full board's robot grid that is 150 touches for a
     median of 84, and 380 for 142 at the cold start (docs/benchmarks.md, "The fit's
     sensors in groups"). The groups are contiguous runs of the sensors sorted by count
-    (the best split has that form), chosen exactly by dynamic programming.
+    (the best split has that form), chosen by dynamic programming: exactly up to
+    GROUP_CUTS sensors, and among cuts at GROUP_CUTS quantiles beyond, so that the table
+    stays small on any board.
     """
     S = counts.size
     if S < 2:
@@ -431,25 +434,25 @@ def _reach_groups(counts: np.ndarray) -> list[np.ndarray]:
     if S * int(c[-1]) - int(c.sum()) <= GROUP_COST:
         return [np.arange(S)]
     order = np.argsort(counts, kind="stable")
-    i = np.arange(S + 1)[:, None]
-    j = np.arange(S + 1)[None, :]
-    # cost[i, j]: the sorted sensors i .. j-1 as one group, padded to the largest, c[j-1].
-    # An empty group costs infinitely much, so none is chosen.
+    cuts = np.unique(np.linspace(0, S, min(S, GROUP_CUTS) + 1).astype(int))  # 0 .. S
+    B = cuts.size
+    i, j = cuts[:, None], cuts[None, :]
+    # cost[p, q]: the sorted sensors cuts[p] .. cuts[q]-1 as one group, padded to the
+    # largest, c[cuts[q]-1]. An empty group costs infinitely much, so none is chosen.
     cost = np.where(j > i, (j - i) * c[np.maximum(j - 1, 0)] + GROUP_COST, np.inf)
-    best = [cost[0]]  # best[g][j]: the first j sensors in g + 1 groups
+    best = [cost[0]]  # best[g][q]: the sensors before cuts[q] in g + 1 groups
     split = []
     for _ in range(1, GROUPS_MAX):
         total = best[-1][:, None] + cost
         arg = np.argmin(total, axis=0)
         split.append(arg)
-        best.append(total[arg, np.arange(S + 1)])
-    n = int(np.argmin([b[S] for b in best]))
-    ends = [S]
+        best.append(total[arg, np.arange(B)])
+    n = int(np.argmin([b[-1] for b in best]))
+    ends = [B - 1]
     for g in range(n, 0, -1):
         ends.append(int(split[g - 1][ends[-1]]))
     ends.append(0)
-    ends = ends[::-1]
-    return [np.sort(order[a:b]) for a, b in itertools.pairwise(ends)]
+    return [np.sort(order[cuts[a] : cuts[b]]) for a, b in itertools.pairwise(ends[::-1])]
 
 
 def _fit_group(
