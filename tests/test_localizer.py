@@ -682,6 +682,68 @@ def test_a_fit_in_groups_equals_the_fit_of_all_sensors_at_once(patch_b, monkeypa
     )
 
 
+def test_drift_measures_over_window_pairs_equal_the_dense_formula(patch_b):
+    """``drift_measures`` reduces over each window's (touch, sensor) pairs only; it must give
+    the dense (touches x sensors) formula's values exactly, with the board's settling known,
+    a sensor whose window is empty, one with a NaN fit, and the touches after the settling's
+    course ends (a live update's)."""
+    loc = peakfit.solved(session(patch_b, "finger", 2).point_logs())
+    f = loc.fit
+    assert loc._settling is not None
+    w = _peak_model.half_width(f.theta)
+    inside = _statuses.window_members(loc, f.theta[:, :2], w, loc.spacing())
+    inside[:, 4] = False
+    f.theta[7, _peak_model.B1] = np.nan
+    course, level = loc._settling
+    loc._settling = (course[:-10], level)
+
+    def dense():
+        fl = _peak_model.floor(loc._tau()[:, None] - f.tc[None, :], f.theta)
+        hi = np.where(inside, fl, -np.inf).max(axis=0)
+        lo = np.where(inside, fl, np.inf).min(axis=0)
+        amp = f.theta[:, _peak_model.AMP]
+        with np.errstate(all="ignore"):
+            own = np.where(amp > 0, np.where(inside.any(axis=0), hi - lo, 0.0) / amp, np.inf)
+        K = len(course) - 10
+        gap = level[None, :] * course[:K, None] - (fl * f.amp + f.floor)[:K]
+        use = inside[:K] & np.isfinite(gap)
+        hi = np.where(use, gap, -np.inf).max(axis=0)
+        lo = np.where(use, gap, np.inf).min(axis=0)
+        peak = amp * f.amp
+        with np.errstate(all="ignore"):
+            out = np.where(peak > 0, np.where(use.any(axis=0), hi - lo, 0.0) / peak, 0.0)
+        return own, np.where(np.isfinite(out), out, 0.0)
+
+    got, want = _statuses.drift_measures(loc, inside), dense()
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[0][4] == 0.0 and np.isnan(got[0][7]) and (got[1] > 0).sum() >= 20
+
+
+def test_the_touches_wire_mates_share_are_counted_exactly():
+    """``_mean_overlap`` counts the touches two windows share in float32, which holds such
+    counts exactly: the fractions are a float64 count's."""
+    rng = np.random.default_rng(11)
+    K, n = 3000, 60
+    inside = rng.random((K, n)) < rng.uniform(0.02, 0.6, n)
+    groups = rng.integers(-1, 8, n)
+    usable = rng.random(n) < 0.9
+    got = _statuses._mean_overlap(inside, groups, usable)
+    want = np.ones(n)
+    counts = inside.sum(axis=0).astype(float)
+    for g in np.unique(groups[groups >= 0]):
+        mates = np.flatnonzero((groups == g) & usable)
+        if mates.size < 2:
+            continue
+        A = inside[:, mates].T.astype(float)
+        common = A @ A.T
+        frac = common / np.sqrt(counts[mates][:, None] * counts[mates][None, :])
+        np.fill_diagonal(frac, 0.0)
+        want[mates] = frac.sum(axis=1) / (mates.size - 1)
+    np.testing.assert_allclose(got, want, rtol=1e-15, atol=0)
+    assert (got < 1).sum() > n // 2
+
+
 def test_the_window_of_a_full_board_equals_the_plain_taper_bit_for_bit():
     """A full board's fit window skips the distance and the cosine where the squared distance
     says the taper is 1 or 0; it must give the plain formula's values exactly: points on

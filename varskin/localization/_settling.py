@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from varskin.localization._maps import span_by_sensor
+
 # A touch is "far" from a sensor beyond this many fitted half widths (bump <= 6% of peak).
 FAR_WIDTHS = 4.0
 # A sensor's settled level is the median of its far touches in the session's second half;
@@ -75,19 +77,21 @@ def unfollowed(
     course: np.ndarray,
     level: np.ndarray,
     fitted_floor: np.ndarray,
-    inside: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
     peak: np.ndarray,
 ) -> np.ndarray:
-    """(N,) how far each sensor's floor moved during its own touches (``inside``, (K, N))
-    beyond what its fitted floor (``fitted_floor``, (K, N), the values' units) followed, in
-    its fitted ``peak`` heights; 0 where the settling is unknown."""
-    K = min(len(course), inside.shape[0])
-    settled = level[None, :] * course[:K, None]
-    gap = settled - fitted_floor[:K]
-    use = inside[:K] & np.isfinite(gap)
-    hi = np.where(use, gap, -np.inf).max(axis=0, initial=-np.inf)
-    lo = np.where(use, gap, np.inf).min(axis=0, initial=np.inf)
-    span = np.where(use.any(axis=0), hi - lo, 0.0)
+    """(N,) how far each sensor's floor moved during its own touches beyond what its fitted
+    floor followed, in its fitted ``peak`` heights; 0 where the settling is unknown.
+
+    The touches are the (touch ``rows``, sensor ``cols``) pairs of the sensors' fit windows,
+    sensor by sensor; ``fitted_floor`` is the fitted floor at each pair, in the values'
+    units.
+    """
+    keep = rows < len(course)
+    gap = level[cols[keep]] * course[rows[keep]] - fitted_floor[keep]
+    use = np.isfinite(gap)
+    span = span_by_sensor(gap[use], cols[keep][use], len(peak))
     with np.errstate(all="ignore"):
         out = np.where(peak > 0, span / np.where(peak > 0, peak, 1.0), 0.0)
     return np.where(np.isfinite(out), out, 0.0)

@@ -18,6 +18,7 @@ import numpy as np
 from varskin.localization import _peak_model as pm
 from varskin.localization._hull import HULL_PRIOR, hull_distance, pull_into_hull
 from varskin.localization._layout_prior import both_axes, shrink_to_layout
+from varskin.localization._maps import span_by_sensor
 from varskin.localization._settling import unfollowed
 from varskin.localization._wire_inference import infer_wires
 from varskin.predictions import OK, R95_PER_AXIS_SD
@@ -269,18 +270,19 @@ def drift_measures(loc: Localizer, inside: np.ndarray) -> tuple[np.ndarray, np.n
     board's settling moved it beyond what that floor followed (0 where the last batch solve
     saw no settling; _settling.py)."""
     f = loc.fit
-    fl = pm.floor(loc._tau()[:, None] - f.tc[None, :], f.theta)  # in the map's units
-    hi = np.where(inside, fl, -np.inf).max(axis=0)
-    lo = np.where(inside, fl, np.inf).min(axis=0)
-    span = np.where(inside.any(axis=0), hi - lo, 0.0)
+    n = inside.shape[1]
+    # Only the touches in each window count: their (touch, sensor) pairs, sensor by sensor.
+    cols, rows = np.nonzero(inside.T)
+    fl = pm.floor(loc._tau()[rows] - f.tc[cols], f.theta[cols])  # in the map's units
+    span = span_by_sensor(fl, cols, n)
     amp = f.theta[:, pm.AMP]
     with np.errstate(all="ignore"):
         own = np.where(amp > 0, span / np.where(amp > 0, amp, 1.0), np.inf)
     if loc._settling is None:
-        return own, np.zeros(len(loc.sensors))
+        return own, np.zeros(n)
     course, level = loc._settling
-    fitted_floor = fl * f.amp[None, :] + f.floor[None, :]
-    return own, unfollowed(course, level, fitted_floor, inside, amp * f.amp)
+    fitted_floor = fl * f.amp[cols] + f.floor[cols]
+    return own, unfollowed(course, level, fitted_floor, rows, cols, amp * f.amp)
 
 
 def drifting_during_own_touches(loc: Localizer, inside: np.ndarray) -> np.ndarray:
@@ -327,8 +329,10 @@ def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) ->
     M = int(member.sum(axis=1).max())
     order = np.argsort(~member, axis=1, kind="stable")[:, :M]
     mask = np.take_along_axis(member, order, axis=1)
-    A = (inside[:, order] & mask[None]).astype(float).transpose(1, 2, 0)  # (G, M, K)
-    common = A @ A.transpose(0, 2, 1)
+    # Counts of shared touches: float32 holds them exactly (a session of up to 2^24
+    # touches), at half the memory traffic of float64, and the float64 result is the same.
+    A = (inside[:, order] & mask[None]).astype(np.float32).transpose(1, 2, 0)  # (G, M, K)
+    common = (A @ A.transpose(0, 2, 1)).astype(float)
     counts = inside.sum(axis=0).astype(float)[order]
     norm = np.sqrt(counts[:, :, None] * counts[:, None, :])
     frac = np.where(norm > 0, common / np.maximum(norm, 1e-12), 0.0)
