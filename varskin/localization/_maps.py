@@ -66,7 +66,7 @@ def span_by_sensor(values: np.ndarray, cols: np.ndarray, n: int) -> np.ndarray:
 
     ``values`` has one entry per (touch, sensor) pair and ``cols`` its sensor, ascending
     (as ``np.nonzero`` of a (sensors, touches) mask gives them): a full board's fit windows
-    hold a tenth of its touches, and a (touches x sensors) array of them all cost a live
+    hold a tenth of its touches, and a (touches x sensors) array of them all cost its live
     update 3 ms. Max and min are exact, so the spans equal the masked array's.
     """
     out = np.zeros(n)
