@@ -7,6 +7,7 @@ Seeded simulated scenes only; the accuracy targets are the issue's (robot 5x20 g
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 
 import numpy as np
@@ -617,8 +618,6 @@ def test_the_fit_s_groups_partition_the_sensors_at_the_least_padded_cost():
     """``_reach_groups`` splits sensors by their touches within reach: every sensor in one
     group exactly once, and the split the exact optimum over every way to cut the sorted
     counts into at most GROUPS_MAX runs (brute force here); on a large board, near it."""
-    import itertools
-
     cost_of = _peak_model.GROUP_COST
     rng = np.random.default_rng(3)
     for S in (2, 5, 12):
