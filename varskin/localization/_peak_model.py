@@ -347,13 +347,36 @@ def fit(
     neighbourhood size (``_reach_groups``), so that a group's arrays are not padded to the
     largest neighbourhood of all.
     """
-    inside = _inside(P, valid, theta0, min_radius, settings)
+    s = settings
+    theta = theta0.astype(float).copy()
+    theta[:, WIDTHS] = np.clip(theta[:, WIDTHS], *_width_range(min_radius, s))
+    # Only the touches within reach can carry weight (the window is compact).
+    reach = _reach(theta, min_radius, s)
+    dist = np.hypot(P[:, 0:1] - theta[..., SX], P[:, 1:2] - theta[..., SY])
+    inside = (dist <= reach[None, :]) & valid
     groups = _reach_groups(inside.sum(axis=0))
-    if len(groups) == 1:
-        return _fit_group(
-            P, tau, U, theta0, min_radius, noise_floor, settings,
-            gain, width_mean, ridge_width, touch_var, scale0, inside,
-        )  # fmt: skip
+    parts = [
+        _fit_group(
+            P,
+            tau[:, g],
+            U[:, g],
+            theta[g],
+            0.5 * (theta0[g, LW] + theta0[g, LWY]),
+            reach[g],
+            min_radius,
+            noise_floor[g],
+            s,
+            gain,
+            None if width_mean is None else width_mean[g],
+            None if ridge_width is None else ridge_width[g],
+            touch_var,
+            None if scale0 is None else scale0[g],
+            inside[:, g],
+        )
+        for g in ([slice(None)] if len(groups) == 1 else groups)
+    ]
+    if len(parts) == 1:
+        return parts[0]
     S = U.shape[1]
     out = FitResult(
         theta=np.empty((S, N_PARAMS)),
@@ -364,22 +387,7 @@ def fit(
         last_step=np.empty(S),
         var_touch=np.empty(S),
     )
-    for g in groups:
-        part = _fit_group(
-            P,
-            tau[:, g],
-            U[:, g],
-            theta0[g],
-            min_radius,
-            noise_floor[g],
-            settings,
-            gain,
-            None if width_mean is None else width_mean[g],
-            None if ridge_width is None else ridge_width[g],
-            touch_var,
-            None if scale0 is None else scale0[g],
-            inside[:, g],
-        )
+    for g, part in zip(groups, parts, strict=True):
         for field in dataclasses.fields(FitResult):
             getattr(out, field.name)[g] = getattr(part, field.name)
     return out
@@ -391,13 +399,6 @@ def _width_range(min_radius: float, s: FitSettings) -> tuple[float, float]:
     return np.log(MIN_WIDTH_SPACINGS * spacing), np.log(MAX_WIDTH_SPACINGS * spacing)
 
 
-def _clipped_start(theta0: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
-    """The start with its log widths within the range a fit may take."""
-    theta = theta0.astype(float).copy()
-    theta[:, WIDTHS] = np.clip(theta[:, WIDTHS], *_width_range(min_radius, s))
-    return theta
-
-
 def _reach(theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
     """How far (mm) from its start a fit can need touches: the window (1.5 R) of a
     footprint up to 1.4x wider than the start, plus room to move."""
@@ -405,14 +406,6 @@ def _reach(theta: np.ndarray, min_radius: float, s: FitSettings) -> np.ndarray:
     return 1.5 * np.maximum(s.window_widths * w0 * 1.4, min_radius) + 0.5 * np.maximum(
         s.window_widths * w0, min_radius
     )
-
-
-def _inside(P, valid, theta0, min_radius: float, s: FitSettings) -> np.ndarray:
-    """(K, S): the valid touches within each fit's reach, the only ones that can carry
-    weight (the window is compact)."""
-    theta = _clipped_start(theta0, min_radius, s)
-    dist = np.hypot(P[:, 0:1] - theta[..., SX], P[:, 1:2] - theta[..., SY])
-    return (dist <= _reach(theta, min_radius, s)[None, :]) & valid
 
 
 def _reach_groups(counts: np.ndarray) -> list[np.ndarray]:
@@ -459,7 +452,9 @@ def _fit_group(
     P: np.ndarray,
     tau: np.ndarray,
     U: np.ndarray,
-    theta0: np.ndarray,
+    theta: np.ndarray,
+    lw_prior: np.ndarray,
+    reach: np.ndarray,
     min_radius: float,
     noise_floor: np.ndarray,
     s: FitSettings,
@@ -470,16 +465,15 @@ def _fit_group(
     scale0: np.ndarray | None,
     inside: np.ndarray,
 ) -> FitResult:
-    """``fit`` of one group of sensors, its touches within reach ``inside`` (K, S)."""
+    """``fit`` of one group of sensors from ``theta`` (S, N_PARAMS), the start with its
+    widths in range (it is updated in place), the log width ``lw_prior`` of the
+    unclipped start, and its touches within ``reach`` (S,), ``inside`` (K, S)."""
     S = U.shape[1]
-    theta = _clipped_start(theta0, min_radius, s)
     lw_lo, lw_hi = _width_range(min_radius, s)
-    lw_prior = 0.5 * (theta0[:, LW] + theta0[:, LWY])
     K = U.shape[0]
     G_all = np.ones(K) if gain is None else gain
-    # Only the touches near each sensor can carry weight (the window is compact): gather
-    # them into (M, S) arrays so a full board costs what its neighbourhoods cost.
-    reach = _reach(theta, min_radius, s)
+    # Gather each sensor's touches within reach into (M, S) arrays so a full board costs
+    # what its neighbourhoods cost.
     M = max(int(inside.sum(axis=0).max()), 1)
     order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
     sel = np.take_along_axis(inside, order, axis=0)
