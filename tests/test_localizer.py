@@ -868,6 +868,42 @@ def test_with_five_or_more_wires_the_design_map_follows_a_stretched_patch(patch_
     assert out_var[0] < 0.25, out_var[0]
 
 
+@pytest.mark.parametrize("probe", ["robot", "finger"])
+def test_a_partial_session_does_not_call_ok_the_sensors_no_touch_came_near(
+    patch_b, monkeypatch, probe
+):
+    """After the first two columns of a serpentine plan most sensors have only their RX
+    wire's ridge in their maps, and a bump between the columns fits it. A map that rose
+    less than WEAK_RISE of the located sensors' is `weak`: that takes out of `ok` only calls
+    tens of millimetres off (7 -> 4 with the robot, 9 -> 4 with the finger), and keeps
+    every call that was right."""
+    from varskin.planning import uniform_points
+
+    s = simulate_session(patch_b, uniform_points(patch_b, 20, 5), probe=probe, seed=1)
+    logs = s.point_logs().subset(np.arange(10))
+    judged = localize(logs, patch=patch_b)
+    monkeypatch.setattr(_statuses, "WEAK_RISE", 0.0)
+    unjudged = localize(logs, patch=patch_b)
+    e, e0 = errors(judged, s.truth), errors(unjudged, s.truth)
+    ok = np.array([x.status == OK for x in judged])
+    ok0 = np.array([x.status == OK for x in unjudged])
+    assert (ok0 & (e0 > 5)).sum() >= 7  # the far-off calls the rule is for
+    assert (ok & (e > 5)).sum() <= 0.6 * (ok0 & (e0 > 5)).sum()
+    assert ok[ok0 & (e0 <= 5)].all()
+    taken = ok0 & ~ok
+    assert taken.any() and (e0[taken] > 20).all()
+    # A weak sensor says so and reports no position.
+    weak = [x for x in judged if x.status == _statuses.WEAK]
+    assert weak and all(x.x_mm is None and x.sigma_mm is None for x in weak)
+
+
+def test_the_upper_decile_is_numpys_0_9_quantile():
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 9, 10, 11, 30, 252):
+        x = rng.lognormal(4.0, 1.0, n)
+        assert _statuses._upper_decile(x) == pytest.approx(np.quantile(x, 0.9), rel=1e-12)
+
+
 def test_live_update_restarts_a_sensor_whose_peak_turns_up_away_from_its_fit(patch_b):
     """Patch B, finger, seed 7: S15's offset drifts down by ~100 counts, so when the last
     re-solve (at 56 logs) ran, its map's top lay at the session's start and its fit put the

@@ -56,6 +56,14 @@ UNFOLLOWED_FRACTION = 0.35
 # ... or taking that settling out of its readings moves its fit too far for its error bar
 # (_drifting.moved_by_settling, judged in each batch solve).
 WEAK_FRACTION = 0.35  # real sensors' peaks span ~0.5x-3.5x their median
+# ... or its map rises above its slow floor less than this fraction of the located sensors'
+# rises (their upper decile): no touch came near it, and what was fitted is the ridge its
+# wire leaves where the probe crossed it (~4 % of a peak), or noise. Mid-session the
+# fitted-peak test above cannot see these: most `ok` calls are such fits then, and the
+# median it compares with is theirs (docs/benchmarks.md, "A partial session's far-off `ok`
+# calls"). The rise is taken above the floor's trend, not its median: a sensor probed first
+# while its offset settled rose only 0.07 of the upper decile above its median.
+WEAK_RISE = 0.1
 # The error of the settling taken out of a sensor's readings (_drifting.take_out_settling),
 # RMS over both axes, as a multiple of how far taking it out moved the sensor's fit. At 1,
 # 2 sigma covers 0.957 of the corrected `ok` robot sensors of benchmarks/localizer_stress.py
@@ -233,6 +241,38 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
             params[key] = {loc.sensors[i]: round(float(mm[i]), 4) for i in np.flatnonzero(which)}
     sigma = sd * to_sigma
     return status, xy, sigma, snr, params
+
+
+def unrisen_weak(loc: Localizer, status: np.ndarray) -> np.ndarray:
+    """The reported verdict's last check: an `ok` sensor whose map rose above its slow floor
+    less than WEAK_RISE of the `ok` sensors' rises (their upper decile) is `weak`.
+
+    Only what the user gets: the solve's own uses of the verdict (the error-bar check, the
+    second-peak and settling re-fits, the layout prior's wires) see ``judge`` as before. Let
+    into ``judge``, the check changed those, and on partial sessions the layout prior then
+    placed loose sensors of wires no touch had crossed, `ok` and ~100 mm off
+    (docs/benchmarks.md, "A partial session's far-off `ok` calls").
+    """
+    ok = status == OK
+    if ok.sum() < 3:
+        return status
+    rise = loc.fit.rise
+    unrisen = ok & (rise < WEAK_RISE * _upper_decile(rise[ok]))
+    if not unrisen.any():
+        return status
+    status = status.copy()
+    status[unrisen] = WEAK
+    return status
+
+
+def _upper_decile(x: np.ndarray) -> float:
+    """The 0.9 quantile of ``x`` (non-empty), interpolated as ``np.quantile`` does, at a
+    fraction of its call overhead (a live update judges every sensor)."""
+    x = np.sort(x)
+    at = 0.9 * (x.size - 1)
+    lo = int(at)
+    hi = min(lo + 1, x.size - 1)
+    return float(x[lo] + (at - lo) * (x[hi] - x[lo]))
 
 
 def _inferred_wires(

@@ -36,7 +36,7 @@ from varskin.localization._live_update import live_judge, update
 from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
 from varskin.localization._shape_screen import favoured_shape
-from varskin.localization._statuses import DEAD, judge, window_members
+from varskin.localization._statuses import DEAD, judge, unrisen_weak, window_members
 from varskin.localization._unseen import shape_spread
 from varskin.patch import Patch
 from varskin.pointlogs import MAX_TIME_S, PointLog, PointLogs
@@ -245,6 +245,9 @@ class _SensorFit:
     start: np.ndarray  # (N, 2) where the fit started (top of the map)
     n_clipped: np.ndarray  # (N,) touches excluded as clipped
     tc: np.ndarray  # (N,) session time (min) of the sensor's largest reading: drift origin
+    # (N,) how far the map rose above its slow floor trend (counts): the top of the
+    # detrended map, so that a floor still settling does not hide or fake a rise
+    rise: np.ndarray
 
     def has_model(self) -> np.ndarray:
         """(N,) bool: a fit with finite parameters and a positive peak, a model to predict
@@ -371,6 +374,7 @@ class Localizer:
             start=np.zeros((n, 2)),
             n_clipped=np.zeros(n, int),
             tc=np.zeros(n),
+            rise=np.zeros(n),
         )
 
     # --- data intake -------------------------------------------------------------------
@@ -614,6 +618,8 @@ class Localizer:
         f.start[cols] = start
         f.n_clipped[cols] = clipped.sum(axis=0)
         f.tc[cols] = tc
+        top = np.max(np.where(valid, D, -np.inf), axis=0)
+        f.rise[cols] = np.where(np.isfinite(top), top * amp, 0.0)
 
     def _initial(self, P, U, valid, h, need: np.ndarray | None = None) -> np.ndarray:
         """Cold start: centre of the map's top, width by a small search, floor and height.
@@ -1015,8 +1021,9 @@ class Localizer:
         return (self._lg, self._dxy, self._missed, self._v_lg, self._v_d)
 
     def _statuses(self) -> np.ndarray:
-        """(N,) every sensor's status as the current fits give it."""
-        return np.array([e.status for e in _predictions(self)], dtype=object)
+        """(N,) every sensor's status as the current fits give it, for the solve's own
+        re-fits: ``judge``'s, without the reported verdict's last check (_reported)."""
+        return np.array([e.status for e in _build(self, *judge(self))], dtype=object)
 
     def _refit_warm(self, cols: np.ndarray) -> None:
         """Fit sensors ``cols`` again from where their fits stand, as a polish round does."""
@@ -1043,7 +1050,7 @@ class Localizer:
             return update(self, log)
 
     def _current(self) -> Predictions:
-        return _build(self, *live_judge(self))
+        return _build(self, *_reported(self, live_judge(self)))
 
     # --- results -----------------------------------------------------------------------
 
@@ -1070,7 +1077,13 @@ def _finite_or_none(a, n: int, name: str) -> np.ndarray | None:
 
 
 def _predictions(loc: Localizer) -> Predictions:
-    return _build(loc, *judge(loc))
+    return _build(loc, *_reported(loc, judge(loc)))
+
+
+def _reported(loc: Localizer, verdict: tuple) -> tuple:
+    """A verdict as the user gets it (_statuses.unrisen_weak)."""
+    status, *rest = verdict
+    return (unrisen_weak(loc, status), *rest)
 
 
 def _build(loc, status, xy, sigma, snr, params) -> Predictions:
