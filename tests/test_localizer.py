@@ -895,6 +895,11 @@ def test_a_partial_session_does_not_call_ok_the_sensors_no_touch_came_near(
     # A weak sensor says so and reports no position.
     weak = [x for x in judged if x.status == _statuses.WEAK]
     assert weak and all(x.x_mm is None and x.sigma_mm is None for x in weak)
+    # Only the verdict the user gets changes: the solve that made it did not see the check
+    # (let into it, the check moved the layout prior's wires), so the rest is as before.
+    np.testing.assert_array_equal(judged.xy()[ok], unjudged.xy()[ok])
+    sigmas = [[x.sigma_mm for x, k in zip(p, ok, strict=True) if k] for p in (judged, unjudged)]
+    assert sigmas[0] == sigmas[1]
 
 
 def test_the_upper_decile_is_numpys_0_9_quantile():
