@@ -902,13 +902,6 @@ def test_a_partial_session_does_not_call_ok_the_sensors_no_touch_came_near(
     assert sigmas[0] == sigmas[1]
 
 
-def test_the_upper_decile_is_numpys_0_9_quantile():
-    rng = np.random.default_rng(5)
-    for n in (1, 2, 3, 9, 10, 11, 30, 252):
-        x = rng.lognormal(4.0, 1.0, n)
-        assert _statuses._upper_decile(x) == pytest.approx(np.quantile(x, 0.9), rel=1e-12)
-
-
 def test_live_update_restarts_a_sensor_whose_peak_turns_up_away_from_its_fit(patch_b):
     """Patch B, finger, seed 7: S15's offset drifts down by ~100 counts, so when the last
     re-solve (at 56 logs) ran, its map's top lay at the session's start and its fit put the

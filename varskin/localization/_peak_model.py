@@ -377,20 +377,14 @@ def fit(
     ]
     if len(parts) == 1:
         return parts[0]
-    S = U.shape[1]
-    out = FitResult(
-        theta=np.empty((S, N_PARAMS)),
-        cov_xy=np.empty((S, 2, 2)),
-        scale=np.empty(S),
-        n_eff=np.empty(S),
-        converged=np.empty(S, bool),
-        last_step=np.empty(S),
-        var_touch=np.empty(S),
+    # The groups' sensors back in their own order.
+    back = np.argsort(np.concatenate(groups))
+    return FitResult(
+        **{
+            field.name: np.concatenate([getattr(part, field.name) for part in parts])[back]
+            for field in dataclasses.fields(FitResult)
+        }
     )
-    for g, part in zip(groups, parts, strict=True):
-        for field in dataclasses.fields(FitResult):
-            getattr(out, field.name)[g] = getattr(part, field.name)
-    return out
 
 
 def _width_range(min_radius: float, s: FitSettings) -> tuple[float, float]:
