@@ -295,11 +295,11 @@ def test_localize_names_the_sensors_the_board_settling_was_taken_out_of(
 
 
 def test_localize_names_the_sensors_placed_from_their_peaks_flanks(tmp_path, capsys):
-    """A 12 x 3 robot plan leaves gaps wider than a bump: the sensors no touch came near
+    """A 10 x 4 robot plan leaves gaps wider than a bump: the sensors no touch came near
     are named, with the largest move the other response shapes gave, above the summary
     line; the JSON's params hold every one of them."""
     logs = tmp_path / "logs.csv"
-    args = ["simulate", "--patch", "patch_b", "--grid", "12x3", "--probe", "robot"]
+    args = ["simulate", "--patch", "patch_b", "--grid", "10x4", "--probe", "robot"]
     assert main([*args, "--seed", "1", "-o", str(logs)]) == 0
     note, spread, worst = _note_above_summary(
         capsys, tmp_path, [str(logs), "--patch", "patch_b"], "shape_spread_mm"

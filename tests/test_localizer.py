@@ -264,20 +264,22 @@ def test_two_sigma_covers_90_to_98_percent_of_ok_sensors(patch_a, patch_b):
 def test_sigma_stays_honest_on_a_sparse_finger_plan(patch_a, patch_b, monkeypatch):
     """On a 12 x 3 finger plan the touches' placement scatter, estimated from the data, comes
     out far below the finger's 1 mm (the sensors' fits absorb part of each offset), and the
-    first-order sigma with it: 2 sigma covers under 90%. The bootstrap check
-    (_error_bar.py, on by default) finds that from the data alone: 90-98%. Given the
-    scatter (`placement_sd_mm`, a floor), 2 sigma covers >= 95% too. The first-order
+    first-order sigma with it. The bootstrap check (_error_bar.py, on by default) finds
+    that from the data alone and widens every scene's sigmas: 2 sigma covers 90-98%. Given
+    the scatter (`placement_sd_mm`, a floor), 2 sigma covers >= 95% too. The first-order
     sigma is taken without the error of the settling taken out of some sensors' readings
     (_statuses.SETTLING_SHIFT_RMS) and without the response shapes' spread of the peaks no
-    touch came near (_unseen.py), neither of which is the placement scatter's: with the
-    spread (and without the settling's term), that mode covers 0.920 here, 0.896 without
-    either."""
+    touch came near (_unseen.py), neither of which is the placement scatter's: that mode
+    covers 0.918 here. Before the footprint was taken from the seen peaks on grids this
+    sparse (peakfit.SEEN_FOOTPRINT_SD), it covered 0.896: widths left free fitted some
+    peaks between the columns narrow and far off."""
     modes = {
         "first order": {"calibrate_sigma": False},
         "default": {},
         "known scatter": {"placement_sd_mm": 1.0},
     }
     inside: dict[str, list] = {m: [] for m in modes}
+    placement, widened = [], []
     for patch in (patch_a, patch_b):
         for seed in (1, 2, 3, 4, 5, 6):
             s = session(patch, "finger", seed, 12, 3)
@@ -293,9 +295,13 @@ def test_sigma_stays_honest_on_a_sparse_finger_plan(patch_a, patch_b, monkeypatc
                     for est, err in zip(pred, e, strict=True)
                     if est.status == OK
                 ]
+                if mode == "default":
+                    placement.append(pred.params["touch_placement_sd_mm"])
+                    widened.append(pred.params["sigma_scale"])
     coverage = {m: float(np.mean(v)) for m, v in inside.items()}
     assert min(len(v) for v in inside.values()) > 200
-    assert coverage["first order"] < 0.90, coverage
+    assert max(placement) < 0.7 and min(widened) > 1.0, (placement, widened)
+    assert coverage["first order"] < coverage["default"], coverage
     assert 0.90 <= coverage["default"] <= 0.98, coverage
     assert coverage["known scatter"] >= 0.95, coverage
     with pytest.raises(InputError, match="placement_sd_mm must be a positive number"):
@@ -875,7 +881,7 @@ def test_a_partial_session_does_not_call_ok_the_sensors_no_touch_came_near(
     """After the first two columns of a serpentine plan most sensors have only their RX
     wire's ridge in their maps, and a bump between the columns fits it. A map that rose
     less than WEAK_RISE of the located sensors' is `weak`: that takes out of `ok` only calls
-    tens of millimetres off (7 -> 4 with the robot, 9 -> 4 with the finger), and keeps
+    tens of millimetres off (11 -> 5 with the robot, 4 -> 2 with the finger), and keeps
     every call that was right."""
     from varskin.planning import uniform_points
 
@@ -887,7 +893,7 @@ def test_a_partial_session_does_not_call_ok_the_sensors_no_touch_came_near(
     e, e0 = errors(judged, s.truth), errors(unjudged, s.truth)
     ok = np.array([x.status == OK for x in judged])
     ok0 = np.array([x.status == OK for x in unjudged])
-    assert (ok0 & (e0 > 5)).sum() >= 7  # the far-off calls the rule is for
+    assert (ok0 & (e0 > 5)).sum() >= 4  # the far-off calls the rule is for
     assert (ok & (e > 5)).sum() <= 0.6 * (ok0 & (e0 > 5)).sum()
     assert ok[ok0 & (e0 <= 5)].all()
     taken = ok0 & ~ok

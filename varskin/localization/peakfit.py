@@ -37,7 +37,7 @@ from varskin.localization._maps import floor_trend, nanmedian_cols
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
 from varskin.localization._shape_screen import favoured_shape
 from varskin.localization._statuses import DEAD, judge, unrisen_weak, window_members
-from varskin.localization._unseen import shape_spread
+from varskin.localization._unseen import UNSEEN_FRACTION, seen_height, shape_spread
 from varskin.patch import Patch
 from varskin.pointlogs import MAX_TIME_S, PointLog, PointLogs
 from varskin.predictions import OK, Predictions, SensorEstimate
@@ -89,6 +89,18 @@ JOINT_SETTLE_ROUNDS = 8
 DESIGN_LOOSE_MM = 1.0
 JOINT_SETTLE_GUARD = 1.15
 JOINT_STEPS = 2
+# Where fewer than 3 sensors have 2 * N_PARAMS effective touches (a sparse grid: 24-40
+# touches for 30 sensors), the probe's footprint is taken from the peaks a touch has seen
+# half of instead, held this loosely (log-width sd; pm.FitSettings.shared_width_sd is the
+# spread around a well-measured footprint). Without it every width was free there, and a
+# peak between two probe columns was fitted a quarter as wide as the seen ones, `ok` up to
+# 8 mm off. Looser than 0.25 because such widths come out 1.1-1.5x wide on 8 x 3 grids
+# (median per scene against the 20 x 5 grid's; log 0.1-0.4), and at 0.25 the whole patch
+# was held to that bias: 2 sigma covered 0.84-0.89 on four sparse rows. At 0.5, on
+# `varskin calibrate`'s 8 x 3, 10 x 4 and 12 x 3 grids (seeds 0-17), every row covers
+# 0.91-0.98, more sensors are located on 11 of 12 and the RMS of the `ok` falls on 10
+# (docs/benchmarks.md, "The footprint from the seen peaks on sparse grids").
+SEEN_FOOTPRINT_SD = 0.5
 # LM iterations per sensor in a polish round (warm-started). Located sensors converge in a
 # few; a sensor not yet probed near (mid-session) never does and would cost the full 100.
 POLISH_MAX_ITER: int | None = 25
@@ -846,12 +858,21 @@ class Localizer:
         return pm.RIDGE_FRACTION * w
 
     def _shared_width(self) -> None:
-        """The probe's footprint: median fitted widths over the well-determined sensors."""
+        """The probe's footprint: median fitted widths over the well-determined sensors,
+        or, where fewer than 3 are, over the seen peaks, held looser (SEEN_FOOTPRINT_SD)."""
         f = self.fit
-        good = f.fitted & f.converged & (f.n_eff >= 2 * pm.N_PARAMS) & (f.theta[:, pm.AMP] > 0)
-        good &= np.isfinite(f.theta).all(axis=1)
+        fitted = f.fitted & f.converged & (f.theta[:, pm.AMP] > 0)
+        fitted &= np.isfinite(f.theta).all(axis=1)
+        good = fitted & (f.n_eff >= 2 * pm.N_PARAMS)
+        sd = pm.FitSettings.shared_width_sd
+        if good.sum() < 3:
+            idx = np.flatnonzero(fitted)
+            good = np.zeros_like(fitted)
+            good[idx[seen_height(self, f.theta[idx], idx) >= UNSEEN_FRACTION]] = True
+            sd = SEEN_FOOTPRINT_SD
         if good.sum() >= 3:
             self.shared_lw = np.median(f.theta[good][:, [pm.LW, pm.LWY]], axis=0)
+            self.settings = replace(self.settings, shared_width_sd=sd)
 
     def solve_all(self, calibrate: bool = True) -> None:
         """Cold-start fit of every sensor, then the touch nuisances (the batch solve).
@@ -934,6 +955,7 @@ class Localizer:
         self._v_lg[:K] = 0.0
         self._v_d[:K] = 0.0
         self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, max(0.5, self._place_floor), None
+        self.settings = replace(self.settings, shared_width_sd=pm.FitSettings.shared_width_sd)
         self.fit.fitted[:] = False
         self._t_from[:] = -np.inf
         self._seed_k[:] = -1
@@ -1006,7 +1028,7 @@ class Localizer:
         return {
             "fit": self.fit.copy_of(),
             "touch": [a[:K].copy() for a in self._touch_arrays()],
-            "scales": (self.gain_sd, self.place_sd_mm, lw),
+            "scales": (self.gain_sd, self.place_sd_mm, lw, self.settings.shared_width_sd),
         }
 
     def _set_touch_and_fit_state(self, state: dict) -> None:
@@ -1014,7 +1036,8 @@ class Localizer:
         self.fit.put(state["fit"])
         for a, v in zip(self._touch_arrays(), state["touch"], strict=True):
             a[:K] = v
-        self.gain_sd, self.place_sd_mm, self.shared_lw = state["scales"]
+        self.gain_sd, self.place_sd_mm, self.shared_lw, sd = state["scales"]
+        self.settings = replace(self.settings, shared_width_sd=sd)
 
     def _touch_arrays(self) -> tuple[np.ndarray, ...]:
         """The per-touch nuisance arrays a polish writes (rows 0..K-1)."""
