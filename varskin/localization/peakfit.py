@@ -868,8 +868,10 @@ class Localizer:
         if good.sum() < 3:
             idx = np.flatnonzero(fitted)
             good = np.zeros_like(fitted)
-            good[idx[seen_height(self, f.theta[idx], idx) >= UNSEEN_FRACTION]] = True
+            good[idx] = seen_height(self, f.theta[idx], idx) >= UNSEEN_FRACTION
             sd = SEEN_FOOTPRINT_SD
+        # The footprint and its sd are set together: the sd only counts where there is a
+        # footprint (pm.sensor_priors), so nothing resets it when a solve starts afresh.
         if good.sum() >= 3:
             self.shared_lw = np.median(f.theta[good][:, [pm.LW, pm.LWY]], axis=0)
             self.settings = replace(self.settings, shared_width_sd=sd)
@@ -955,7 +957,6 @@ class Localizer:
         self._v_lg[:K] = 0.0
         self._v_d[:K] = 0.0
         self.gain_sd, self.place_sd_mm, self.shared_lw = 0.2, max(0.5, self._place_floor), None
-        self.settings = replace(self.settings, shared_width_sd=pm.FitSettings.shared_width_sd)
         self.fit.fitted[:] = False
         self._t_from[:] = -np.inf
         self._seed_k[:] = -1
