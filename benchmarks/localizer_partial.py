@@ -1,5 +1,6 @@
 """A partial session's batch solve: how many `ok` calls are far off, with and without the
-reported verdict's rise check (``_statuses.unrisen_weak``).
+reported verdict's checks (``_design_reach.unreached_sparse``, with the patch given, and
+``_statuses.unrisen_weak``).
 
 A session cut short (a killed process, a stop, ``varskin localize`` on the logs so far)
 is solved like a whole one. After the first columns of a serpentine plan most sensors have
@@ -7,8 +8,8 @@ only their RX wire's ridge in their maps, and a bump between the probed columns 
 (docs/localizer.md, Known limits). This solves the first K touches of ``varskin
 calibrate``'s 20 x 5 plan (``planning.uniform_points``) for Patch A and B, robot and finger,
 and counts, pooled over the seeds, the `ok` calls, those more than 5 mm from the scene's
-truth, and the fraction within 2 sigma. Both verdicts come from the same solve: the check
-changes no fit, position or sigma, only which `ok` calls are reported `weak`.
+truth, and the fraction within 2 sigma. Both verdicts come from the same solve: the checks
+change no fit, position or sigma, only which `ok` calls are reported `sparse` or `weak`.
 
 Run as ``python benchmarks/localizer_partial.py`` (seeds 0-5 and the patch given: 2m42s on
 2026-11-28, beside another benchmark); ``--seeds 0-15``, ``--patch-given no``.
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> None:
         f"seeds {seeds[0]}-{seeds[-1]}, patch given: {args.patch_given}; `ok` calls, "
         f"> {FAR_MM:g} mm off, within 2 sigma (pooled)"
     )
-    print("| scene | touches | without the rise check | with it | right calls lost |")
+    print("| scene | touches | without the reported checks | with them | right calls lost |")
     print("|---|---|---|---|---|")
     for pname in ("patch_a", "patch_b"):
         p = builtin_patch(pname)

@@ -3,14 +3,16 @@ spread in the error bar of the ones they did not (varskin/localization/_unseen.p
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from varskin.localization import _design_reach, _live_update, _unseen, localize, peakfit
 from varskin.localization import _peak_model as pm
-from varskin.localization import _unseen, localize, peakfit
-from varskin.localization._statuses import SPARSE, WEAK, judge, unrisen_weak
+from varskin.localization._statuses import SPARSE, WEAK, judge
+from varskin.patch import patch_from_dict
 from varskin.planning import uniform_points
 from varskin.pointlogs import PointLog
 from varskin.predictions import OK
@@ -156,7 +158,7 @@ def test_the_live_view_locates_a_sensor_once_a_touch_has_seen_its_peak(patch_b):
     calls `sparse` most of the `ok` calls of the plain verdict on the same fits that are
     more than 5 mm off, and keeps nearly all of those within 5 mm; nothing else of the
     estimates changes. The seen heights the updates keep equal ones computed afresh, and
-    the batch solve is the plain verdict (both with the reported verdict's rise check)."""
+    the batch solve is the plain verdict (both with the reported verdict's checks)."""
     far = {"live": 0, "plain": 0}
     near = {"live": 0, "plain": 0}
     for seed in range(3):
@@ -181,7 +183,114 @@ def test_the_live_view_locates_a_sensor_once_a_touch_has_seen_its_peak(patch_b):
         batch = loc.result()
         with peakfit._quiet():
             plain = judge(loc)[0]
-        assert [e.status for e in batch] == unrisen_weak(loc, plain).tolist()
+        assert [e.status for e in batch] == peakfit._reported(loc, (plain,))[0].tolist()
     assert far["plain"] >= 100
     assert far["live"] <= 0.4 * far["plain"], far
     assert near["live"] >= 0.95 * near["plain"], near
+
+
+def _without_the_design_check(loc, verdict):
+    """The verdict the user would get from the same fits without _design_reach's check."""
+    with pytest.MonkeyPatch.context() as m, peakfit._quiet():
+        m.setattr(_design_reach, "DESIGN_REACH_WIDTHS", np.inf)
+        return peakfit._build(loc, *peakfit._reported(loc, verdict))
+
+
+def _far_and_near(pred, truth) -> tuple[int, int]:
+    """`ok` calls more than 5 mm off, and within 5 mm."""
+    ok = np.array([e.status == OK for e in pred])
+    err = np.hypot(*(pred.xy() - truth).T)
+    return int((ok & (err > 5.0)).sum()), int((ok & (err <= 5.0)).sum())
+
+
+def test_with_the_patch_the_live_view_waits_for_a_touch_near_each_design_position(patch_b):
+    """A wire's ridge fitted beside the probed columns can count as seen (a touch saw half
+    of the bump fitted there). With the patch given, the reported verdict also waits for a
+    touch within DESIGN_REACH_WIDTHS half widths of its bump (_design_reach.reach_width)
+    of where the design puts the sensor. Over the first 30 live updates of the serpentine
+    20 x 5 plan (robot, seeds 0-2) that takes 41 `ok` calls more than 5 mm off to 2 and
+    holds back no call within 5 mm; only `ok` and `weak` calls change, to `sparse`. The
+    distances the updates keep equal ones computed afresh."""
+    far = {"with": 0, "without": 0}
+    near = {"with": 0, "without": 0}
+    for seed in range(3):
+        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "robot", seed)
+        logs = s.point_logs()
+        loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
+        for log in list(logs.logs())[:30]:
+            live = loc.update(log)
+            np.testing.assert_array_equal(loc._design_gap, _design_reach.design_gap(loc))
+            with peakfit._quiet():
+                plain = _without_the_design_check(loc, _live_update.live_judge(loc))
+            for view, pred in (("with", live), ("without", plain)):
+                n_far, n_near = _far_and_near(pred, s.truth)
+                far[view] += n_far
+                near[view] += n_near
+            changed = [(a.status, b.status) for a, b in zip(plain, live, strict=True)]
+            # `weak` too: the design's check comes before the rise check (unrisen_weak).
+            assert {pair for pair in changed if pair[0] != pair[1]} <= {
+                (OK, SPARSE),
+                (WEAK, SPARSE),
+            }
+            np.testing.assert_array_equal(
+                live.xy()[[a == b == OK for a, b in changed]],
+                plain.xy()[[a == b == OK for a, b in changed]],
+            )
+    assert far["without"] >= 30, far
+    assert far["with"] <= 0.2 * far["without"], far
+    assert near["with"] == near["without"], near
+
+
+def test_a_partial_session_s_result_waits_for_a_touch_near_each_design_position(patch_b):
+    """The batch solve of a session cut short after 10 touches (two columns of the 20 x 5
+    plan; robot and finger, seeds 0-2): its 15 `ok` calls more than 5 mm off become `sparse`,
+    none within 5 mm does. A whole plan has a touch near every sensor: nothing changes
+    (seed 0)."""
+    far = {"with": 0, "without": 0}
+    near = {"with": 0, "without": 0}
+    for probe, seed in itertools.product(("robot", "finger"), range(3)):
+        s = simulate_session(patch_b, uniform_points(patch_b, 20, 5), probe, seed)
+        logs = s.point_logs()
+        # The whole plan's solve on one seed per probe (each takes about a second).
+        for touches in (10, 100) if seed == 0 else (10,):
+            loc = peakfit.solved(logs.subset(np.arange(touches)), patch=patch_b)
+            result = loc.result()
+            with peakfit._quiet():
+                plain = _without_the_design_check(loc, judge(loc))
+            if touches == 100:
+                assert [e.status for e in result] == [e.status for e in plain]
+                continue
+            for view, pred in (("with", result), ("without", plain)):
+                n_far, n_near = _far_and_near(pred, s.truth)
+                far[view] += n_far
+                near[view] += n_near
+    assert far["without"] >= 10, far
+    assert far["with"] <= 0.2 * far["without"], far
+    assert near["with"] == near["without"], near
+
+
+def test_the_design_gap_counts_touches_that_made_contact_along_the_known_axes():
+    """mm from each sensor's design position to the nearest touch: a touch that missed does
+    not count; where the design gives one wire only, the distance runs along that axis; where
+    it gives none, or without a patch, nothing is measured (0)."""
+    patch = patch_from_dict(
+        {
+            "name": "two_by_one",
+            "size_mm": [40.0, 20.0],
+            "tx_x_mm": [10.0, 30.0],
+            "rx_y_mm": [10.0],
+            "sensors": [{"name": "A", "tx": 0, "rx": 0}, {"name": "B", "tx": 1, "rx": 0}],
+        },
+        "<test>",
+    )
+    # C is on no wire of the patch; B's RX wire (5) is not in it.
+    wires = {"A": (0, 0), "B": (1, 5), "C": (-1, -1)}
+    loc = peakfit.Localizer(["A", "B", "C"], patch=patch, wires=wires)
+    for k, (x, y) in enumerate([(10.0, 13.0), (30.0, 18.0), (14.0, 10.0)]):
+        loc._append(PointLog(touch=k + 1, x_mm=x, y_mm=y, values=np.zeros(3)))
+    gap = _design_reach.design_gap
+    np.testing.assert_allclose(gap(loc), [3.0, 0.0, 0.0])
+    loc._missed[1] = True  # the touch on B's TX wire made no contact
+    np.testing.assert_allclose(gap(loc), [3.0, 16.0, 0.0])
+    np.testing.assert_allclose(gap(loc, np.array([0])), [3.0, 20.0, 0.0])
+    assert not gap(peakfit.Localizer(["A", "B"])).any()

@@ -22,6 +22,7 @@ import numpy as np
 
 from varskin.errors import InputError
 from varskin.localization import _peak_model as pm
+from varskin.localization._design_reach import unreached_sparse
 from varskin.localization._drifting import (
     moved_by_settling,
     refit_after_settling,
@@ -368,6 +369,10 @@ class Localizer:
         # kept by the live updates for the live view's verdict (_live_update.live_judge);
         # None: to compute afresh (a batch solve moved every fit).
         self._live_seen: np.ndarray | None = None
+        # Per sensor: mm from its design position to the nearest touch that made contact
+        # (_design_reach.design_gap), kept by the live updates; None: to compute afresh (a
+        # batch solve may have called other touches missed).
+        self._design_gap: np.ndarray | None = None
         # Per sensor: the last live update's estimate of its touch's gain and placement
         # changed what that touch says to this sensor's model, so the next update re-fits
         # it too (_live_update.update).
@@ -913,6 +918,7 @@ class Localizer:
         if calibrate and self._fixed_shape is None:
             shape_spread(self)
         self._live_seen = None
+        self._design_gap = None
         self._refit_next[:] = False
         self._dirty = False
 
@@ -1105,9 +1111,10 @@ def _predictions(loc: Localizer) -> Predictions:
 
 
 def _reported(loc: Localizer, verdict: tuple) -> tuple:
-    """A verdict as the user gets it (_statuses.unrisen_weak)."""
+    """A verdict as the user gets it (_design_reach.unreached_sparse, then
+    _statuses.unrisen_weak over the `ok` calls left)."""
     status, *rest = verdict
-    return (unrisen_weak(loc, status), *rest)
+    return (unrisen_weak(loc, unreached_sparse(loc, status)), *rest)
 
 
 def _build(loc, status, xy, sigma, snr, params) -> Predictions:
