@@ -151,6 +151,16 @@ def test_a_touch_on_an_unseen_peak_takes_its_spread_out_of_the_live_error_bar(pa
     assert np.hypot(now.x_mm - x, now.y_mm - y) <= 2.0 * now.sigma_mm
 
 
+def _first_touches_live(patch, seeds=range(3), touches=30):
+    """Per seed: the robot's serpentine 20 x 5 session on ``patch``, a live Localizer given
+    the patch, and the session's first ``touches`` point logs, for it to update with."""
+    for seed in seeds:
+        s = simulate_session(patch, uniform_grid(patch, 20, 5), "robot", seed)
+        logs = s.point_logs()
+        loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch)
+        yield s, loc, list(logs.logs())[:touches]
+
+
 def test_the_live_view_locates_a_sensor_once_a_touch_has_seen_its_peak(patch_b):
     """Mid-session on a serpentine 20 x 5 plan, a sensor on the part of the patch not yet
     probed has only its RX wire's ridge in its map, which a bump between the probed columns
@@ -161,11 +171,8 @@ def test_the_live_view_locates_a_sensor_once_a_touch_has_seen_its_peak(patch_b):
     the batch solve is the plain verdict (both with the reported verdict's checks)."""
     far = {"live": 0, "plain": 0}
     near = {"live": 0, "plain": 0}
-    for seed in range(3):
-        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "robot", seed)
-        logs = s.point_logs()
-        loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
-        for log in list(logs.logs())[:30]:
+    for s, loc, logs in _first_touches_live(patch_b):
+        for log in logs:
             live = loc.update(log)
             with peakfit._quiet():
                 status, xy, sigma, _, _ = judge(loc)
@@ -206,18 +213,15 @@ def _far_and_near(pred, truth) -> tuple[int, int]:
 def test_with_the_patch_the_live_view_waits_for_a_touch_near_each_design_position(patch_b):
     """A wire's ridge fitted beside the probed columns can count as seen (a touch saw half
     of the bump fitted there). With the patch given, the reported verdict also waits for a
-    touch within DESIGN_REACH_WIDTHS half widths of its bump (_design_reach.reach_width)
+    touch within DESIGN_REACH_WIDTHS half widths of its bump (Localizer._footprint_width)
     of where the design puts the sensor. Over the first 30 live updates of the serpentine
     20 x 5 plan (robot, seeds 0-2) that takes 41 `ok` calls more than 5 mm off to 2 and
     holds back no call within 5 mm; only `ok` and `weak` calls change, to `sparse`. The
     distances the updates keep equal ones computed afresh."""
     far = {"with": 0, "without": 0}
     near = {"with": 0, "without": 0}
-    for seed in range(3):
-        s = simulate_session(patch_b, uniform_grid(patch_b, 20, 5), "robot", seed)
-        logs = s.point_logs()
-        loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_b)
-        for log in list(logs.logs())[:30]:
+    for s, loc, logs in _first_touches_live(patch_b):
+        for log in logs:
             live = loc.update(log)
             np.testing.assert_array_equal(loc._design_gap, _design_reach.design_gap(loc))
             with peakfit._quiet():

@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from varskin.localization import _peak_model as pm
 from varskin.localization._statuses import SPARSE
 from varskin.predictions import OK
 
@@ -26,7 +25,7 @@ if TYPE_CHECKING:
     from varskin.localization.peakfit import Localizer
 
 # An `ok` fit is reported `sparse` while no touch has come within this many half widths
-# (``reach_width``) of the sensor's design position: the touches then saw at most a tenth
+# (``Localizer._footprint_width``) of the sensor's design position: the touches then saw at most a tenth
 # of its peak (the Lorentzian at 3 half widths), about what its wire's ridge and tail give.
 # That is 18-45 mm on Patch B (footprints of 6-15 mm), far more than a 2 % stretch, a 0.5
 # degree turn or wires 1.5 mm off their design move a sensor. On the live sessions and
@@ -57,24 +56,23 @@ def design_gap(loc: Localizer, rows: np.ndarray | None = None) -> np.ndarray:
 
 def unreached_sparse(loc: Localizer, status: np.ndarray) -> np.ndarray:
     """``status`` with every `ok` sensor no touch has come within DESIGN_REACH_WIDTHS half
-    widths (``reach_width``) of its design position `sparse` (with the patch given; else
-    unchanged).
+    widths of its design position `sparse` (with the patch given; else unchanged).
 
     The distances are kept in ``loc._design_gap`` (None: computed afresh here); a live
-    update lowers them with its touch (``_live_update.update``)."""
+    update lowers them with its touch (``touch_added``)."""
     if loc.design is None:
         return status
     if loc._design_gap is None:
         loc._design_gap = design_gap(loc)
-    far = loc._design_gap > DESIGN_REACH_WIDTHS * reach_width(loc)
+    # The probe's footprint where the solve has one, not each fit's own width: a fit to a
+    # ridge and a tail can come out wide, which would stretch the reach just where it must
+    # not; the sensors' true widths scatter about the footprint by about a tenth.
+    w = loc._footprint_width(len(loc.sensors), loc.fit.theta)
+    far = loc._design_gap > DESIGN_REACH_WIDTHS * w
     return np.where((status == OK) & far, SPARSE, status)
 
 
-def reach_width(loc: Localizer) -> np.ndarray:
-    """(N,) the half width (mm) a sensor's bump is taken to have: the probe's footprint
-    where the solve has one (``loc.shared_lw``), else each fit's own. A fit to a ridge and a
-    tail can come out wide, which would stretch the reach just where it must not; the
-    sensors' true widths scatter about the footprint by about a tenth."""
-    if loc.shared_lw is not None:
-        return np.full(len(loc.sensors), float(np.exp(loc.shared_lw.mean())))
-    return pm.half_width(loc.fit.theta)
+def touch_added(loc: Localizer, k: int) -> None:
+    """A live update's touch ``k``: the kept distances, if any, may now be shorter."""
+    if loc._design_gap is not None and not loc._missed[k]:
+        np.minimum(loc._design_gap, design_gap(loc, np.array([k])), out=loc._design_gap)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from varskin.localization import _peak_model as pm
-from varskin.localization._design_reach import design_gap
+from varskin.localization._design_reach import touch_added
 from varskin.localization._maps import nanmedian_cols
 from varskin.localization._statuses import SPARSE, judge
 from varskin.localization._unseen import UNSEEN_FRACTION, seen_height
@@ -143,8 +143,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     if todo.size and loc._shape_shift[todo].any():
         loc._shape_shift[todo] *= seen < UNSEEN_FRACTION
     # The reported verdict's distances from the design positions: this touch may be nearer.
-    if loc._design_gap is not None and not loc._missed[k]:
-        np.minimum(loc._design_gap, design_gap(loc, np.array([k])), out=loc._design_gap)
+    touch_added(loc, k)
     return loc._current()
 
 

@@ -857,10 +857,15 @@ class Localizer:
             self._refit_warm(cols)
         self._dirty = False
 
+    def _footprint_width(self, n: int, theta: np.ndarray) -> np.ndarray:
+        """(n,) the half width (mm) a bump is taken to have: the probe's footprint where the
+        solve has one (``shared_lw``), else each fit's own (``theta``, one row per sensor)."""
+        if self.shared_lw is None:
+            return pm.half_width(theta)
+        return np.full(n, float(np.exp(self.shared_lw.mean())))
+
     def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
-        lw = self.shared_lw if self.shared_lw is not None else None
-        w = pm.half_width(theta) if lw is None else np.full(n, float(np.exp(lw.mean())))
-        return pm.RIDGE_FRACTION * w
+        return pm.RIDGE_FRACTION * self._footprint_width(n, theta)
 
     def _shared_width(self) -> None:
         """The probe's footprint: median fitted widths over the well-determined sensors,
