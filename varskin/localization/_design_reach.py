@@ -67,7 +67,7 @@ def unreached_sparse(loc: Localizer, status: np.ndarray) -> np.ndarray:
     # The probe's footprint where the solve has one, not each fit's own width: a fit to a
     # ridge and a tail can come out wide, which would stretch the reach just where it must
     # not; the sensors' true widths scatter about the footprint by about a tenth.
-    w = loc._footprint_width(len(loc.sensors), loc.fit.theta)
+    w = loc._footprint_width(loc.fit.theta)
     far = loc._design_gap > DESIGN_REACH_WIDTHS * w
     return np.where((status == OK) & far, SPARSE, status)
 

@@ -87,7 +87,7 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     if cols.size == 0:
         return sim, model_ok
     th = f.theta[cols]
-    rho = loc._ridge_width(cols.size, th)
+    rho = loc._ridge_width(th)
     t = loc._tau()
     tau = t[:, None] - f.tc[cols][None, :]
     at = loc._P[:K] + loc._dxy[:K]

@@ -69,7 +69,7 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     U = (np.take_along_axis(V, order, axis=0) - f.floor[cols]) / f.amp[cols]
     U = np.where(sel, U, 0.0)
     sc = np.maximum(f.scale[cols], 1e-9)
-    rho = loc._ridge_width(S, theta)
+    rho = loc._ridge_width(theta)
     width_mean = None if loc.shared_lw is None else np.tile(loc.shared_lw, (S, 1))
     Q, mu = pm.sensor_priors(S, s, width_mean, 0.5 * (theta[:, pm.LW] + theta[:, pm.LWY]))
     prior_t = np.array([1.0 / loc.gain_sd**2] + [1.0 / loc.place_sd_mm**2] * 2)

@@ -93,7 +93,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     # in time fitted to the touches near the sensor only.
     if k:
         recent = nanmedian_cols(loc._V[max(0, k - RECENT_TOUCHES) : k] * loc._sign)
-        ridge = loc._ridge_width(len(loc.sensors), f.theta)
+        ridge = loc._ridge_width(f.theta)
         zero = np.zeros((1, len(loc.sensors)))
         bump = pm.model(p[None], zero, f.theta, None, ridge, shape)[0] - pm.floor(zero, f.theta)[0]
         rise = (v_new - recent) / f.amp - bump
@@ -121,7 +121,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     # second pass now: that pass cost a whole fit on most of a finger's updates, and
     # waiting one touch leaves the live view as good (docs/benchmarks.md, session 57).
     th = f.theta[todo]
-    rho = loc._ridge_width(todo.size, th)
+    rho = loc._ridge_width(th)
     zero = np.zeros((1, todo.size))
     m0 = pm.model(loc._P[k : k + 1], zero, th, None, rho, shape)[0]
     m1 = pm.model(

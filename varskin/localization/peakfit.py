@@ -617,7 +617,7 @@ class Localizer:
             self.settings if max_iter is None else replace(self.settings, max_iter=max_iter),
             gain=np.exp(self._lg[:K]),
             width_mean=None if self.shared_lw is None else np.tile(self.shared_lw, (cols.size, 1)),
-            ridge_width=self._ridge_width(cols.size, theta0),
+            ridge_width=self._ridge_width(theta0),
             touch_var=(np.full(K, self.gain_sd**2), np.full(K, self.place_sd_mm**2)),
             scale0=np.where(warm, f.scale[cols] * f.amp[cols] / amp, 0.3) if warm.any() else None,
         )
@@ -751,7 +751,7 @@ class Localizer:
         scale = np.maximum(f.scale[sel], 1e-9)
         lg = self._lg[rows].copy()
         d = self._dxy[rows].copy()
-        rho = self._ridge_width(cols.size, thc)[order]
+        rho = self._ridge_width(thc)[order]
         prior = np.array(
             [1.0 / self.gain_sd**2, 1.0 / self.place_sd_mm**2, 1.0 / self.place_sd_mm**2]
         )
@@ -857,15 +857,16 @@ class Localizer:
             self._refit_warm(cols)
         self._dirty = False
 
-    def _footprint_width(self, n: int, theta: np.ndarray) -> np.ndarray:
-        """(n,) the half width (mm) a bump is taken to have: the probe's footprint where the
-        solve has one (``shared_lw``), else each fit's own (``theta``, one row per sensor)."""
+    def _footprint_width(self, theta: np.ndarray) -> np.ndarray:
+        """The half width (mm) a bump is taken to have, one per row of ``theta`` (a fit per
+        sensor): the probe's footprint where the solve has one (``shared_lw``), else each
+        fit's own."""
         if self.shared_lw is None:
             return pm.half_width(theta)
-        return np.full(n, float(np.exp(self.shared_lw.mean())))
+        return np.full(len(theta), float(np.exp(self.shared_lw.mean())))
 
-    def _ridge_width(self, n: int, theta: np.ndarray) -> np.ndarray:
-        return pm.RIDGE_FRACTION * self._footprint_width(n, theta)
+    def _ridge_width(self, theta: np.ndarray) -> np.ndarray:
+        return pm.RIDGE_FRACTION * self._footprint_width(theta)
 
     def _shared_width(self) -> None:
         """The probe's footprint: median fitted widths over the well-determined sensors,
