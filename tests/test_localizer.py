@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -28,6 +29,7 @@ from varskin.localization import (
     paper,
     peakfit,
 )
+from varskin.patch import patch_from_dict
 from varskin.predictions import OK
 from varskin.scene import SceneParams
 from varskin.simulate import simulate_session, uniform_grid
@@ -323,6 +325,123 @@ def test_sigma_grows_when_the_data_get_worse(patch_b):
     s_r = np.median([p.sigma_mm for p in robot if p.status == OK])
     s_f = np.median([p.sigma_mm for p in finger if p.status == OK])
     assert s_f > 2.0 * s_r
+
+
+def _judged(loc) -> tuple:
+    status, xy, sigma, _, _ = _statuses.judge(loc)
+    return status.tolist(), xy, sigma
+
+
+def test_a_part_of_a_session_solves_as_if_recorded_alone(patch_b):
+    """``Localizer._subset`` (what the error-bar check re-solves on a board): all of a
+    session is the session, bit for bit, with and without touch times; and some sensors
+    and touches solve as a session recorded with only those (its first touch kept: the
+    session clock starts there)."""
+    s = session(patch_b, "robot", 3)
+    for logs in (s.point_logs(), replace(s.point_logs(), t_s=None)):
+        loc = peakfit.solved(logs)
+        whole = copy.deepcopy(loc)
+        whole.solve_all(calibrate=False)
+        part = loc._subset(np.arange(len(loc.sensors)), np.arange(loc.n_logs))
+        part.solve_all(calibrate=False)
+        for a, b in zip(_judged(whole), _judged(part), strict=True):
+            np.testing.assert_array_equal(a, b)
+    logs = s.point_logs()
+    cols = np.arange(0, 30, 2)
+    rows = np.r_[0:40, 55:100]
+    alone = replace(
+        logs,
+        sensors=tuple(logs.sensors[i] for i in cols),
+        touch=logs.touch[rows],
+        xy_mm=logs.xy_mm[rows],
+        values=logs.values[np.ix_(rows, cols)],
+        n_samples=logs.n_samples[rows],
+        sample_sd=logs.sample_sd[np.ix_(rows, cols)],
+        rest=logs.rest[cols],
+        rest_sd=logs.rest_sd[cols],
+        t_s=logs.t_s[rows],
+        force_n=None,
+    )
+    part = peakfit.solved(logs)._subset(cols, rows)
+    part.solve_all()
+    for a, b in zip(_judged(part), _judged(peakfit.solved(alone)), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_large_robot_session_checks_its_error_bars_on_a_band_of_whole_wires(patch_b, monkeypatch):
+    """A session with BAND_FROM modelled sensors re-solves a band of whole wires across
+    its longer axis and the touches nearest to them, with the wires of the whole verdict;
+    a settled (finger-like) solve re-solves the whole. Patch B (10 TX wires of 3 sensors
+    along x) stands in for a board, with the band's sizes scaled down."""
+    monkeypatch.setattr(_error_bar, "BAND_FROM", 20)
+    monkeypatch.setattr(_error_bar, "BAND_SENSORS", 12)
+    monkeypatch.setattr(_error_bar, "CUT_SEARCH", 2)
+    parts = []
+    band_session = _error_bar.band_session
+
+    def spy(loc, sim, part):
+        sub = band_session(loc, sim, part)
+        parts.append((loc, part, sub))
+        return sub
+
+    monkeypatch.setattr(_error_bar, "band_session", spy)
+    tx = np.array([sensor.tx for sensor in patch_b.sensors])
+    for seed in (1, 2, 3):
+        s = session(patch_b, "robot", seed)
+        logs = s.point_logs()
+        pred = localize(logs)
+        # Two replicates (30 sensors give 30 of the 60 samples a factor wants): one band.
+        assert len(parts) == 2 and parts[0][1] is parts[1][1]
+        loc, (cols, rows), sub = parts.pop()
+        parts.clear()
+        band = np.isin(np.arange(30), cols)
+        # Whole wires, at least 12 sensors, and consecutive wires (wrapping round the end).
+        assert all(band[tx == w].all() or not band[tx == w].any() for w in range(10))
+        wires = np.unique(tx[cols])
+        assert 4 <= wires.size <= 6
+        assert np.sum(np.diff(np.isin(np.arange(10), wires).astype(int)) != 0) <= 2
+        # The touches whose nearest sensor (by its fit) is in the band.
+        d = np.hypot(*(logs.xy_mm[:, None, :] - loc.fit.theta[None, :, :2]).transpose(2, 0, 1))
+        np.testing.assert_array_equal(rows, np.flatnonzero(band[np.argmin(d, axis=1)]))
+        assert sub.sensors == tuple(logs.sensors[i] for i in cols) and sub.n_logs == rows.size
+        if loc._verdict_wires is None:
+            assert sub.groups is None and not sub.params["infer_wires"]
+        else:
+            np.testing.assert_array_equal(sub.groups[0], loc._verdict_wires[0][cols])
+        assert 0.8 <= pred.params["sigma_scale"] <= 3.0
+    localize(session(patch_b, "finger", 1).point_logs())
+    assert not parts
+
+
+def test_a_full_board_s_error_bars_checked_on_a_band_cover_90_to_98_percent(monkeypatch):
+    """The full Muca board (21 x 12 sensors, 1,000 robot touches) checks its error bars on
+    a band of about 120 sensors and the touches nearest them (_error_bar.checked_part);
+    2 sigma still covers 90-98 % of its `ok` sensors."""
+    board = patch_from_dict(
+        {
+            "name": "muca_full",
+            "size_mm": [300.0, 200.0],
+            "tx_x_mm": [7.0 + 13.6 * i for i in range(21)],
+            "rx_y_mm": [8.0 + 16.7 * j for j in range(12)],
+        },
+        "<full board>",
+    )
+    s = simulate_session(board, uniform_grid(board, 50, 20), probe="robot", seed=0)
+    sizes = []
+    subset = peakfit.Localizer._subset
+
+    def spy(self, cols, rows):
+        sizes.append((len(cols), len(rows)))
+        return subset(self, cols, rows)
+
+    monkeypatch.setattr(peakfit.Localizer, "_subset", spy)
+    pred = localize(s.point_logs())
+    assert len(sizes) == 1
+    n, k = sizes[0]
+    assert 120 <= n <= 120 + _error_bar.CUT_SEARCH and 300 < k < 700, sizes
+    inside = within_two_sigma(pred, errors(pred, s.truth))
+    assert len(inside) > 200
+    assert 0.90 <= np.mean(inside) <= 0.98, np.mean(inside)
 
 
 def test_incremental_result_equals_batch_and_live_updates_are_sane(patch_b):

@@ -45,6 +45,12 @@ if TYPE_CHECKING:
 TARGET_SAMPLES = 60
 MAX_REPLICATES = 2
 MIN_SAMPLES = 20  # fewer checked sensors than this: the factor would be noise; left at 1
+# Sessions with this many modelled sensors check a band of about BAND_SENSORS of them
+# (checked_part): twice TARGET_SAMPLES, so that the band's cut sides, where touches lost
+# the sensors beyond, are a small part of it; below, the band would save little.
+BAND_FROM = 180
+BAND_SENSORS = 2 * TARGET_SAMPLES
+CUT_SEARCH = BAND_SENSORS // 8  # how far (in sensors) a band's end may move to a wider gap
 # E|e/sigma|^2 for a calibrated sigma: e is 2-D Gaussian with per-axis sd s and
 # sigma = s R95_PER_AXIS_SD / 2, so E|e|^2 / sigma^2 = 2 / (R95_PER_AXIS_SD / 2)^2.
 CALIBRATED_Z2 = 2.0 / (R95_PER_AXIS_SD / 2.0) ** 2
@@ -126,6 +132,67 @@ def simulated_session(loc: Localizer, rng: np.random.Generator) -> tuple[Localiz
     return sim, model_ok
 
 
+def checked_part(loc: Localizer, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
+    """The sensors and the touches a large session's check re-solves (increasing indices),
+    or None: all of them.
+
+    A board's replicate is a second batch solve of every sensor, nearly half the batch
+    solve's time, though ~60 checked sensors size the factor. Where at least BAND_FROM
+    sensors have a model, the check re-solves a band of about BAND_SENSORS of them, across
+    the patch and contiguous along its longer axis (by fitted position), from a random
+    place along it and wrapping round its end, so that every sensor is as likely to be
+    checked, the patch's edges included. Its ends are cut at the widest gaps between the
+    sorted positions near them, on a grid between two wires. With the band go the touches
+    whose nearest modelled sensor is in it, as if the session had probed the band alone:
+    the touches beyond inform none of its fits but, kept, hold the EM estimates of the
+    touches' scatter nearer their priors (robot board, seed 0: 0.155 mm placement scatter
+    with the touches inside the band's fit windows, 0.128 mm with those it owns, 0.117 mm
+    in the whole solve). On robot-probed boards the band asked for 0.98x the whole check's
+    factor on average over 12 seeds (0.86-1.11x each); on finger-probed ones 0.88x (6
+    seeds; the band's errors and sigmas 11-15% above the whole solve's on the same
+    sensors, seeds 0 and 1), so a settled (finger-like) solve checks the whole
+    (docs/benchmarks.md, "A board's error-bar check on a band").
+    """
+    model_ok = np.flatnonzero(loc.fit.has_model())
+    n = model_ok.size
+    if n < BAND_FROM or loc._settled:
+        return None
+    xy = loc.fit.theta[model_ok, :2]
+    axis = int(np.ptp(xy[:, 1]) > np.ptp(xy[:, 0]))
+    sort = np.argsort(xy[:, axis], kind="stable")
+    gap = np.empty(n)
+    gap[1:] = np.diff(xy[sort, axis])
+    gap[0] = np.inf  # the wrap, from the last sensor back to the first: the patch's edges
+
+    def cut_near(i: int) -> int:
+        near = (i + np.arange(-CUT_SEARCH, CUT_SEARCH + 1)) % n
+        return int(near[np.argmax(gap[near])])
+
+    first = cut_near(int(rng.integers(0, n)))
+    size = (cut_near(first + BAND_SENSORS) - first) % n
+    if size == 0:
+        return None
+    cols = np.sort(model_ok[sort[(first + np.arange(size)) % n]])
+    P = loc._P[: loc.n_logs]
+    d2 = (P[:, None, 0] - xy[None, :, 0]) ** 2 + (P[:, None, 1] - xy[None, :, 1]) ** 2
+    rows = np.flatnonzero(np.isin(model_ok[np.argmin(d2, axis=1)], cols))
+    return cols, rows
+
+
+def band_session(loc: Localizer, sim: Localizer, part: tuple[np.ndarray, np.ndarray]) -> Localizer:
+    """``sim`` cut to ``part`` (checked_part), its verdict to use the wires ``loc``'s last
+    verdict used (none, if it found none): a band of a grid that the band cuts across is
+    no full grid, and its own inference (which wants one) found no wires in it."""
+    cols, rows = part
+    sub = sim._subset(cols, rows)
+    wires = loc._verdict_wires
+    if wires is None:
+        sub.params = {**sub.params, "infer_wires": False}
+    else:
+        sub.groups = (wires[0][cols], wires[1][cols])
+    return sub
+
+
 def _seed(loc: Localizer) -> int:
     """A seed drawn from the session's own readings: the same logs give the same sigmas,
     and different sessions get independent simulations (one fixed seed would give every
@@ -143,10 +210,15 @@ def sigma_scale(loc: Localizer) -> float:
         return 1.0
     replicates = min(MAX_REPLICATES, max(1, math.ceil(TARGET_SAMPLES / n_ok)))
     rng = np.random.default_rng(_seed(loc))
+    part = checked_part(loc, rng)
     truth = loc.fit.theta[:, :2].copy()
+    if part is not None:
+        truth = truth[part[0]]
     z2: list[np.ndarray] = []
     for _ in range(replicates):
         sim, simulated = simulated_session(loc, rng)
+        if part is not None:
+            sim, simulated = band_session(loc, sim, part), simulated[part[0]]
         sim.solve_all(calibrate=False)
         status, xy, sigma, _, _ = judge(sim)
         ok = (status == OK) & simulated & np.isfinite(xy).all(axis=1) & (sigma > 0)

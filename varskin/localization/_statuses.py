@@ -188,6 +188,7 @@ def judge(loc: Localizer) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
             groups = _inferred_wires(loc, xy, np.sqrt(axes), ok, loose, floor)
             if groups is not None:
                 params["wires"] = "inferred"
+    loc._verdict_wires = groups
     if groups is not None and ok.sum() >= 2:
         tx, rx = groups
         # Sensors on one wire see largely the same touches, so the part of their error that

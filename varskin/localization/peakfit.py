@@ -303,6 +303,9 @@ class Localizer:
         )
         self._shape_z: float | None = None
         self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
+        # The (tx, rx) wires the last verdict's layout prior used: given, or inferred from
+        # the fits (None: no prior); what _error_bar.checked_part cuts a board's band along.
+        self._verdict_wires: tuple[np.ndarray, np.ndarray] | None = None
         self.design = _wire_design(self.sensors, self.params["patch"], self.groups)
         cap = 64
         self._k = 0
@@ -408,6 +411,38 @@ class Localizer:
             b = np.zeros((cap,) + a.shape[1:], a.dtype)
             b[: self._k] = a[: self._k]
             setattr(self, name, b)
+
+    def _subset(self, cols: np.ndarray, rows: np.ndarray) -> Localizer:
+        """A localizer of the sensors ``cols`` and the touches ``rows`` alone (both
+        increasing), with the same response shape, not yet solved: the session as if only
+        those touches had been recorded, with only those sensors (for _error_bar.py's check
+        of boards too large to re-solve whole). The touches go through the intake again,
+        at their own session times."""
+        cols, rows = np.asarray(cols, int), np.asarray(rows, int)
+
+        def pick(a):
+            return None if a is None else a[cols].copy()
+
+        sub = type(self)(
+            [self.sensors[i] for i in cols], pick(self.rest), pick(self.rest_sd), **self.params
+        )
+        sub.settings = self.settings
+        sub._raw = self._raw
+        for k in rows:
+            # A session without times had ~7.5 s per touch (_tau); given as times, the kept
+            # touches keep theirs, gaps included.
+            t = self._t[k] if self._has_time else float(k) * 7.5
+            log = PointLog(
+                touch=int(k),
+                x_mm=self._P[k, 0],
+                y_mm=self._P[k, 1],
+                values=self._V[k, cols],
+                sample_sd=self._noise[k, cols],
+                t_s=t,
+            )
+            sub._append(log)
+        sub._t0 = self._t0 if self._has_time else 0.0
+        return sub
 
     def _append(self, log: PointLog) -> bool:
         """Store one log; False if it carries no usable position."""
