@@ -30,6 +30,7 @@ from varskin.localization import (
     peakfit,
 )
 from varskin.patch import patch_from_dict
+from varskin.planning import uniform_points
 from varskin.predictions import OK
 from varskin.scene import SceneParams
 from varskin.simulate import simulate_session, uniform_grid
@@ -442,6 +443,44 @@ def test_a_full_board_s_error_bars_checked_on_a_band_cover_90_to_98_percent(monk
     inside = within_two_sigma(pred, errors(pred, s.truth))
     assert len(inside) > 200
     assert 0.90 <= np.mean(inside) <= 0.98, np.mean(inside)
+
+
+@pytest.mark.parametrize(("patch_name", "sensor"), [("patch_a", 3), ("patch_b", 16)])
+def test_a_fit_that_cycles_with_its_window_converges_once_the_window_is_held(
+    patch_name, sensor, request, monkeypatch
+):
+    """`varskin calibrate`'s sparse 12 x 3 plan, robot, seed 2: one sensor's fit moves its
+    window with it and never settles, so it is `irregular`. The batch solve's last step
+    fits it again with the window held (Localizer._hold_stuck): it converges, `ok`, within
+    0.15 mm and 2 sigma of the truth."""
+    patch = request.getfixturevalue(patch_name)
+    s = simulate_session(patch, uniform_points(patch, 12, 3), probe="robot", seed=2)
+    logs = s.point_logs()
+    held = localize(logs, patch=patch).estimates[sensor]
+    err = math.hypot(held.x_mm - s.truth[sensor, 0], held.y_mm - s.truth[sensor, 1])
+    assert held.status == OK and err <= min(0.15, 2.0 * held.sigma_mm), (held, err)
+    monkeypatch.setattr(peakfit.Localizer, "_hold_stuck", lambda self: None)
+    assert localize(logs, patch=patch).estimates[sensor].status == "irregular"
+
+
+def test_the_live_view_s_re_solve_leaves_the_stuck_fits_and_result_holds_them(patch_a):
+    """A live update that re-solves a partial session (the session doubled) does not hold
+    the fits that did not converge (there they are mostly the peaks no touch came near
+    yet); `result()` then solves again, and equals the batch solve that holds them."""
+    s = simulate_session(patch_a, uniform_points(patch_a, 12, 3), probe="robot", seed=2)
+    logs = s.point_logs().subset(np.arange(32))
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_a)
+    for log in logs.logs():
+        live = loc.update(log)
+    assert loc._unheld and loc._dirty  # the 32nd touch re-solved, leaving stuck fits
+    stuck = ~loc.fit.converged & loc.fit.has_model()
+    assert stuck.any()
+    batch = localize(logs, patch=patch_a)
+    assert [e.status for e in loc.result()] == [e.status for e in batch]
+    np.testing.assert_array_equal(loc.result().xy(), batch.xy())
+    assert [e.status for e in live] != [e.status for e in batch] or not np.array_equal(
+        live.xy(), batch.xy(), equal_nan=True
+    )
 
 
 def test_incremental_result_equals_batch_and_live_updates_are_sane(patch_b):

@@ -219,7 +219,7 @@ def sigma_scale(loc: Localizer) -> float:
         sim, simulated = simulated_session(loc, rng)
         if part is not None:
             sim, simulated = band_session(loc, sim, part), simulated[part[0]]
-        sim.solve_all(calibrate=False)
+        sim.solve_all(calibrate=False, final=loc._final)
         status, xy, sigma, _, _ = judge(sim)
         ok = (status == OK) & simulated & np.isfinite(xy).all(axis=1) & (sigma > 0)
         z = np.linalg.norm(xy[ok] - truth[ok], axis=1) / sigma[ok]

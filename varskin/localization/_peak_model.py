@@ -337,6 +337,7 @@ def fit(
     ridge_width: np.ndarray | None = None,
     touch_var: tuple[np.ndarray, np.ndarray] | None = None,
     scale0: np.ndarray | None = None,
+    hold_window: bool = False,
 ) -> FitResult:
     """Robust windowed Levenberg-Marquardt for S sensors at once.
 
@@ -345,7 +346,8 @@ def fit(
 
     Each sensor's fit is its own: the sensors are solved in a few groups of similar
     neighbourhood size (``_reach_groups``), so that a group's arrays are not padded to the
-    largest neighbourhood of all.
+    largest neighbourhood of all. ``hold_window``: each fit's window stays where its start
+    puts it, instead of following the fit (peakfit.Localizer._hold_stuck).
     """
     s = settings
     theta = theta0.astype(float).copy()
@@ -372,6 +374,7 @@ def fit(
             touch_var,
             None if scale0 is None else scale0[g],
             inside[:, g],
+            hold_window,
         )
         for g in ([slice(None)] if len(groups) == 1 else groups)
     ]
@@ -458,6 +461,7 @@ def _fit_group(
     touch_var: tuple[np.ndarray, np.ndarray] | None,
     scale0: np.ndarray | None,
     inside: np.ndarray,
+    hold_window: bool = False,
 ) -> FitResult:
     """``fit`` of one group of sensors from ``theta`` (S, N_PARAMS), the start with its
     widths in range (it is updated in place), the log width ``lw_prior`` of the
@@ -494,7 +498,11 @@ def _fit_group(
     def prior_hessian(th, cols):
         return prior_hessian_of(th, Q[cols], s)
 
+    held = theta.copy() if hold_window else None
+
     def fit_window(th, cols):
+        if held is not None:
+            th = held[cols]
         return window(P[:, cols], th, min_radius, s) * vf[:, cols]
 
     def robust_weights(win, res, sc):

@@ -342,6 +342,10 @@ class Localizer:
         self._joint_ratio: float | None = None
         self._joint_kept = False
         self._dirty = False  # touches added since the last full polish
+        # The last batch solve's kind (solve_all's ``final``), and whether, not final, it
+        # left fits that a final one holds (then result() solves again).
+        self._final = True
+        self._unheld = False
         self._next_full = 8  # the live view re-solves everything when the session doubles
         self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
         self._sign = 1.0
@@ -591,6 +595,7 @@ class Localizer:
         cols: np.ndarray,
         warm: np.ndarray,
         max_iter: int | None = None,
+        hold_window: bool = False,
     ) -> None:
         """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit."""
         K = self._k
@@ -655,6 +660,7 @@ class Localizer:
             ridge_width=self._ridge_width(theta0),
             touch_var=(np.full(K, self.gain_sd**2), np.full(K, self.place_sd_mm**2)),
             scale0=np.where(warm, f.scale[cols] * f.amp[cols] / amp, 0.3) if warm.any() else None,
+            hold_window=hold_window,
         )
         f.theta[cols] = res.theta
         f.floor[cols] = floor
@@ -922,8 +928,12 @@ class Localizer:
             self.shared_lw = np.median(f.theta[good][:, [pm.LW, pm.LWY]], axis=0)
             self.settings = replace(self.settings, shared_width_sd=sd)
 
-    def solve_all(self, calibrate: bool = True) -> None:
+    def solve_all(self, calibrate: bool = True, final: bool = True) -> None:
         """Cold-start fit of every sensor, then the touch nuisances (the batch solve).
+
+        ``final`` False: the live view's re-solve of a partial session, which leaves the
+        fits that did not converge as they stand (``_hold_stuck``) and says so in
+        ``_unheld``, so that ``result()`` solves again.
 
         ``calibrate``: then choose the response shape (``response_shape`` "auto") and size
         the sigmas as ``_error_bar`` measures (if the ``calibrate_sigma`` parameter allows).
@@ -936,6 +946,8 @@ class Localizer:
         """
         self._sigma_scale = 1.0
         self._shape_z = None
+        self._final = final
+        self._unheld = False
         if calibrate:
             self.settings = replace(self.settings, shape=self._fixed_shape or pm.SHAPES[0])
         self._solve_once(screen=calibrate and self._fixed_shape is None)
@@ -991,6 +1003,29 @@ class Localizer:
         )
         self._moved_by_settling = moved_by_settling(self, inside)
         refit_after_settling(self, inside)
+        self._hold_stuck()
+
+    def _hold_stuck(self) -> None:
+        """Fit once more, with their windows held where they stand, the sensors whose fits
+        did not converge: the solve's last step before the error-bar check.
+
+        A fit's window moves with it at every LM iteration, and so does the cost it
+        descends: at the probes' edge a fit can cycle instead of settling, and so be
+        `irregular`. A run of the README's main job had two such sensors (steps of
+        0.08-0.52 mm at the end of each refit); held, the window's cost is fixed, LM
+        converges, and they are `ok` (docs/localizer.md, "A fit that cycles with its
+        window"). Not in the live view's re-solves of a partial session (``_final``
+        False): there the fits that have not converged are mostly the sensors no touch
+        has come near yet, and windows held in every solve cost the live view its
+        coverage (docs/benchmarks.md, session 64).
+        """
+        stuck = np.flatnonzero(self.fit.has_model() & ~self.fit.converged)
+        if not stuck.size:
+            return
+        if not self._final:
+            self._unheld = True
+            return
+        self._solve(stuck, np.ones(stuck.size, bool), hold_window=True)
 
     def _fit_and_settle(self) -> None:
         """Every sensor fitted from a cold start, then the alternation's rounds, and the
