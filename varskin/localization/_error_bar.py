@@ -181,8 +181,8 @@ def checked_part(loc: Localizer, rng: np.random.Generator) -> tuple[np.ndarray, 
 
 def band_session(loc: Localizer, sim: Localizer, part: tuple[np.ndarray, np.ndarray]) -> Localizer:
     """``sim`` cut to ``part`` (checked_part), its verdict to use the wires ``loc``'s last
-    verdict used (none, if it found none): a band of a grid that the band cuts across is
-    no full grid, and its own inference (which wants one) found no wires in it."""
+    verdict used (none, if it found none). A band that cuts a grid's wires short is no
+    full grid, and its own inference (which wants one) found no wires in it."""
     cols, rows = part
     sub = sim._subset(cols, rows)
     wires = loc._verdict_wires

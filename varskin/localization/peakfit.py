@@ -304,7 +304,7 @@ class Localizer:
         self._shape_z: float | None = None
         self.groups = _wire_groups(self.sensors, self.params["patch"], self.params["wires"])
         # The (tx, rx) wires the last verdict's layout prior used: given, or inferred from
-        # the fits (None: no prior); what _error_bar.checked_part cuts a board's band along.
+        # the fits (None: no prior); _error_bar.band_session gives them to a board's band.
         self._verdict_wires: tuple[np.ndarray, np.ndarray] | None = None
         self.design = _wire_design(self.sensors, self.params["patch"], self.groups)
         cap = 64
