@@ -14,7 +14,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import pytest  # noqa: E402
 
-from varskin.patch import builtin_patch  # noqa: E402
+from varskin.patch import builtin_patch, patch_from_dict  # noqa: E402
 
 
 def pytest_addoption(parser):
@@ -50,3 +50,18 @@ def patch_b():
 @pytest.fixture(scope="session")
 def patch_a():
     return builtin_patch("patch_a")
+
+
+@pytest.fixture(scope="session")
+def full_board():
+    """A full Muca board: 21 TX x 12 RX wires, 252 sensors on 300 x 200 mm (as
+    benchmarks/localizer_scale.py's)."""
+    return patch_from_dict(
+        {
+            "name": "muca_full",
+            "size_mm": [300.0, 200.0],
+            "tx_x_mm": [7.0 + 13.6 * i for i in range(21)],
+            "rx_y_mm": [8.0 + 16.7 * j for j in range(12)],
+        },
+        "<full board>",
+    )

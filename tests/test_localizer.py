@@ -29,7 +29,6 @@ from varskin.localization import (
     paper,
     peakfit,
 )
-from varskin.patch import patch_from_dict
 from varskin.planning import uniform_points
 from varskin.predictions import OK
 from varskin.scene import SceneParams
@@ -414,19 +413,13 @@ def test_a_large_robot_session_checks_its_error_bars_on_a_band_of_whole_wires(pa
     assert not parts
 
 
-def test_a_full_board_s_error_bars_checked_on_a_band_cover_90_to_98_percent(monkeypatch):
+def test_a_full_board_s_error_bars_checked_on_a_band_cover_90_to_98_percent(
+    monkeypatch, full_board
+):
     """The full Muca board (21 x 12 sensors, 1,000 robot touches) checks its error bars on
     a band of about 120 sensors and the touches nearest them (_error_bar.checked_part);
     2 sigma still covers 90-98 % of its `ok` sensors."""
-    board = patch_from_dict(
-        {
-            "name": "muca_full",
-            "size_mm": [300.0, 200.0],
-            "tx_x_mm": [7.0 + 13.6 * i for i in range(21)],
-            "rx_y_mm": [8.0 + 16.7 * j for j in range(12)],
-        },
-        "<full board>",
-    )
+    board = full_board
     s = simulate_session(board, uniform_grid(board, 50, 20), probe="robot", seed=0)
     sizes = []
     subset = peakfit.Localizer._subset
@@ -472,9 +465,8 @@ def test_the_live_view_s_re_solve_leaves_the_stuck_fits_and_result_holds_them(pa
     loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd, patch=patch_a)
     for log in logs.logs():
         live = loc.update(log)
-    assert loc._unheld and loc._dirty  # the 32nd touch re-solved, leaving stuck fits
     stuck = ~loc.fit.converged & loc.fit.has_model()
-    assert stuck.any()
+    assert loc._dirty and stuck.any()  # the 32nd touch re-solved, leaving stuck fits
     batch = localize(logs, patch=patch_a)
     assert [e.status for e in loc.result()] == [e.status for e in batch]
     np.testing.assert_array_equal(loc.result().xy(), batch.xy())

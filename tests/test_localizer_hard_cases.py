@@ -12,7 +12,6 @@ import pytest
 from varskin.localization import _drifting, _statuses, peakfit
 from varskin.localization._settling import board_settling
 from varskin.localization._statuses import DRIFTING
-from varskin.patch import patch_from_dict
 from varskin.pointlogs import PointLogs
 from varskin.predictions import OK
 from varskin.scene import ADC_MAX, Scene, SceneParams
@@ -387,7 +386,9 @@ def test_a_finger_fit_that_did_not_follow_the_settling_is_drifting(
 
 
 @pytest.mark.parametrize("mode", ["re-fitted", "corrected-without-the-check", "without-either"])
-def test_a_board_corner_the_settling_moved_is_placed_by_its_later_touches(monkeypatch, mode):
+def test_a_board_corner_the_settling_moved_is_placed_by_its_later_touches(
+    monkeypatch, mode, full_board
+):
     """A full Muca board (21 x 12 sensors, 300 x 200 mm), robot on a 50 x 20 grid, seed 1:
     S1 is the corner the scan starts at, probed while the offsets settle. Only 0.13 of its
     peak went unfollowed (under UNFOLLOWED_FRACTION), but that moved it 2.2 mm at 5.5
@@ -400,15 +401,7 @@ def test_a_board_corner_the_settling_moved_is_placed_by_its_later_touches(monkey
         monkeypatch.setattr(_drifting, "SETTLING_MOVE_MM", np.inf)
     if mode == "without-either":  # shows the scene is one the check must catch
         _without_correction(monkeypatch)
-    board = patch_from_dict(
-        {
-            "name": "muca_full",
-            "size_mm": [300.0, 200.0],
-            "tx_x_mm": [7.0 + 13.6 * i for i in range(21)],
-            "rx_y_mm": [8.0 + 16.7 * j for j in range(12)],
-        },
-        "<full board>",
-    )
+    board = full_board
     s = simulate_session(board, uniform_grid(board, 50, 20), probe="robot", seed=1)
     loc = peakfit.solved(s.point_logs())
     pred = check(loc.result(), 252)

@@ -202,9 +202,10 @@ def _seed(loc: Localizer) -> int:
     return zlib.crc32(data.tobytes()) ^ zlib.crc32(np.ascontiguousarray(loc._P[:K]).tobytes())
 
 
-def sigma_scale(loc: Localizer) -> float:
+def sigma_scale(loc: Localizer, final: bool = True) -> float:
     """The factor by which ``loc``'s sigmas must grow (> 1) or shrink to be honest, as
-    measured on sessions simulated from its fits; 1 where too few sensors can be checked."""
+    measured on sessions simulated from its fits; 1 where too few sensors can be checked.
+    ``final``: the kind of solve ``loc`` took (solve_all), which the simulated ones repeat."""
     n_ok = int(np.sum(judge(loc)[0] == OK))
     if n_ok == 0:
         return 1.0
@@ -219,7 +220,7 @@ def sigma_scale(loc: Localizer) -> float:
         sim, simulated = simulated_session(loc, rng)
         if part is not None:
             sim, simulated = band_session(loc, sim, part), simulated[part[0]]
-        sim.solve_all(calibrate=False, final=loc._final)
+        sim.solve_all(calibrate=False, final=final)
         status, xy, sigma, _, _ = judge(sim)
         ok = (status == OK) & simulated & np.isfinite(xy).all(axis=1) & (sigma > 0)
         z = np.linalg.norm(xy[ok] - truth[ok], axis=1) / sigma[ok]

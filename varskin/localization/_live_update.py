@@ -69,7 +69,6 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
         # shared footprint and the touch nuisances settle, and the cost stays amortized.
         loc._next_full = max(2 * loc._k, 8)
         loc.solve_all(final=False)
-        loc._dirty = loc._unheld
         return loc._current()
     p = loc._P[k]  # the touch's own placement offset is estimated below
     w = pm.half_width(f.theta)

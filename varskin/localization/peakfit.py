@@ -341,11 +341,9 @@ class Localizer:
         # were held to (None: not tried), and whether they were kept.
         self._joint_ratio: float | None = None
         self._joint_kept = False
-        self._dirty = False  # touches added since the last full polish
-        # The last batch solve's kind (solve_all's ``final``), and whether, not final, it
-        # left fits that a final one holds (then result() solves again).
-        self._final = True
-        self._unheld = False
+        # Touches added since the last full polish, or a live re-solve left fits that the
+        # final solve holds (solve_all's ``final``): result() solves again.
+        self._dirty = False
         self._next_full = 8  # the live view re-solves everything when the session doubles
         self.shared_lw: np.ndarray | None = None  # (2,) log footprint widths of the probe
         self._sign = 1.0
@@ -932,8 +930,8 @@ class Localizer:
         """Cold-start fit of every sensor, then the touch nuisances (the batch solve).
 
         ``final`` False: the live view's re-solve of a partial session, which leaves the
-        fits that did not converge as they stand (``_hold_stuck``) and says so in
-        ``_unheld``, so that ``result()`` solves again.
+        fits that did not converge as they stand (``_hold_stuck``) and, if it left any,
+        keeps the session dirty, so that ``result()`` solves again.
 
         ``calibrate``: then choose the response shape (``response_shape`` "auto") and size
         the sigmas as ``_error_bar`` measures (if the ``calibrate_sigma`` parameter allows).
@@ -946,11 +944,9 @@ class Localizer:
         """
         self._sigma_scale = 1.0
         self._shape_z = None
-        self._final = final
-        self._unheld = False
         if calibrate:
             self.settings = replace(self.settings, shape=self._fixed_shape or pm.SHAPES[0])
-        self._solve_once(screen=calibrate and self._fixed_shape is None)
+        left_unheld = self._solve_once(calibrate and self._fixed_shape is None, final)
         # Not for `joint`: there the check narrowed the robot's error bars to 2-sigma
         # coverage 0.88-0.92 (docs/localizer.md, "Two batch solvers").
         if (
@@ -959,7 +955,7 @@ class Localizer:
             and self.params["calibrate_sigma"]
             and self.params["solver"] == "alternate"
         ):
-            self._sigma_scale = sigma_scale(self)
+            self._sigma_scale = sigma_scale(self, final)
         # After the error bar's factor, which is measured on sessions simulated from the
         # uncorrected fits (they solve with calibrate False, and so without this). Measured
         # for the default solver only (docs/benchmarks.md, "The board's settling taken out
@@ -973,11 +969,12 @@ class Localizer:
         self._live_seen = None
         self._design_gap = None
         self._refit_next[:] = False
-        self._dirty = False
+        self._dirty = left_unheld
 
-    def _solve_once(self, screen: bool) -> None:
+    def _solve_once(self, screen: bool, final: bool = True) -> bool:
         """The batch solve from a cold start, at the current response shape or, with
-        ``screen``, at the one the maps favour.
+        ``screen``, at the one the maps favour; ``final``: with its last step,
+        ``_hold_stuck``. Returns whether it left fits for that step (``final`` False).
 
         The screen comes before the joint rounds: from their end the current shape's
         touch offsets fit it better than a short solve can re-fit them for another shape,
@@ -987,7 +984,7 @@ class Localizer:
         """
         self._fit_and_settle()
         if self._k < 3:
-            return
+            return False
         if screen:
             shape, self._shape_z = favoured_shape(self)
             if shape != self.settings.shape:
@@ -1003,7 +1000,14 @@ class Localizer:
         )
         self._moved_by_settling = moved_by_settling(self, inside)
         refit_after_settling(self, inside)
+        if not final:
+            return bool(self._unconverged().size)
         self._hold_stuck()
+        return False
+
+    def _unconverged(self) -> np.ndarray:
+        """The sensors with a model whose fit did not converge."""
+        return np.flatnonzero(self.fit.has_model() & ~self.fit.converged)
 
     def _hold_stuck(self) -> None:
         """Fit once more, with their windows held where they stand, the sensors whose fits
@@ -1014,18 +1018,14 @@ class Localizer:
         `irregular`. A run of the README's main job had two such sensors (steps of
         0.08-0.52 mm at the end of each refit); held, the window's cost is fixed, LM
         converges, and they are `ok` (docs/localizer.md, "A fit that cycles with its
-        window"). Not in the live view's re-solves of a partial session (``_final``
-        False): there the fits that have not converged are mostly the sensors no touch
+        window"). Not in the live view's re-solves of a partial session (solve_all's
+        ``final`` False): there the fits that have not converged are mostly the sensors no touch
         has come near yet, and windows held in every solve cost the live view its
         coverage (docs/benchmarks.md, session 64).
         """
-        stuck = np.flatnonzero(self.fit.has_model() & ~self.fit.converged)
-        if not stuck.size:
-            return
-        if not self._final:
-            self._unheld = True
-            return
-        self._solve(stuck, np.ones(stuck.size, bool), hold_window=True)
+        stuck = self._unconverged()
+        if stuck.size:
+            self._solve(stuck, np.ones(stuck.size, bool), hold_window=True)
 
     def _fit_and_settle(self) -> None:
         """Every sensor fitted from a cold start, then the alternation's rounds, and the
