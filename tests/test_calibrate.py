@@ -26,6 +26,7 @@ import yaml
 
 from robot.launch import load_launch
 from varskin.cli import main
+from varskin.localization.peakfit import Localizer
 from varskin.patch import config_dir
 from varskin.planning import UniformPlanner
 from varskin.pointlog_csv import read_point_logs
@@ -432,10 +433,12 @@ def test_resume_refuses_a_damaged_file_before_anything_starts(
     assert started == [] and copy.read_bytes() == before
 
 
-def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
+def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys, monkeypatch):
     """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
     stored point logs to the localizer and must land on exactly the stored touches (else the
-    resume refuses). A complete session resumes to its end without a new touch."""
+    resume refuses). The planner gets the batch solves the session stored, not solved again:
+    the only one the resume computes is the final estimate. A complete session resumes to
+    its end without a new touch."""
     launch = write_launch(tmp_path / "sim_adaptive.yaml", **{"plan.mode": "adaptive"})
     db = tmp_path / "adaptive.db"
     assert main(["calibrate", str(launch), "-o", str(db), "--budget", "28"]) == 0
@@ -449,8 +452,17 @@ def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys):
     coarse_xy = {(o.x_mm, o.y_mm) for o in outcomes if o.phase == "coarse"}
     assert not adaptive_xy & coarse_xy  # off the coarse grid: chosen, not a grid
     capsys.readouterr()
+    solved_from = []
+    result = Localizer.result
+
+    def counted(self):
+        solved_from.append(self.n_logs)
+        return result(self)
+
+    monkeypatch.setattr(Localizer, "result", counted)
     assert main(["calibrate", "--resume", str(db)]) == 0
     assert f"resumed after {len(outcomes)} plan touches" in capsys.readouterr().err
+    assert solved_from == [sum(o.ok for o in outcomes)]  # the final estimate alone
     with SessionStore.open(db) as store:
         assert len(store.attempts()) == n_attempts  # the robot touched nothing more
         assert len(store.outcomes()) == len(outcomes)

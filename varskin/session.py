@@ -7,9 +7,9 @@ of the stream. A touch without contact, with a board gap or with too few frames 
 a bounded number of times; a protective stop pauses the session until someone unlocks the
 arm on the pendant. Each finished touch is committed to the ``SessionStore`` with the live
 estimates after it, so a killed session resumes (``resume=True``) by re-feeding the stored
-point logs to the localizer and the stored outcomes to the planner: both are deterministic,
-so they reach exactly the state they had, and the session carries on from the next plan
-index.
+point logs to the localizer and the stored outcomes, with the estimates the planner chose
+by, to the planner: both are deterministic, so they reach exactly the state they had, and
+the session carries on from the next plan index.
 
 What happens is also reported as a stream of plain ``SessionEvent``s to a callback (the
 terminal's live view); nothing in the loop depends on who listens.
@@ -35,6 +35,7 @@ from varskin.errors import (
     StoreError,
 )
 from varskin.localization import localize
+from varskin.localization.peakfit import NAME as LIVE_METHOD
 from varskin.localization.peakfit import Localizer
 from varskin.planning import PlannedTouch, TouchOutcome
 from varskin.pointlogs import PointLogs
@@ -197,9 +198,9 @@ class CalibrationSession:
             touch_points_mm=np.array([[o.x_mm, o.y_mm] for o in outcomes]).reshape(-1, 2),
         )
 
-    def _live(self, log) -> Predictions:
+    def _live(self, log, shown: Predictions | None = None) -> Predictions:
         return live_estimate(
-            self.localizer, log, self.settings.live_estimate, self.settings.batch_after_logs
+            self.localizer, log, self.settings.live_estimate, self.settings.batch_after_logs, shown
         )
 
     def _new_localizer(self, rest, rest_sd) -> Localizer:
@@ -213,6 +214,9 @@ class CalibrationSession:
         if outcomes:
             rest, rest_sd, _ = self.store.baseline() or (None, None, 0)
             self.localizer = self._new_localizer(rest, rest_sd)
+        # What the session showed after each of its point logs, keyed by their number.
+        shown = self.store.estimates("live", LIVE_METHOD) if outcomes else {}
+        n_logs = 0
         touch: PlannedTouch | None = None
         try:
             touch = next(self.planner)
@@ -228,7 +232,10 @@ class CalibrationSession:
                         f"{self.store.path}: damaged session file (plan touch {o.plan_index} "
                         f"succeeded but its point log is missing)"
                     )
-                preds = self._live(logs[o.plan_index]) if o.ok else None
+                preds = None
+                if o.ok:
+                    n_logs += 1
+                    preds = self._live(logs[o.plan_index], shown.get(n_logs))
                 planned, touch = touch, None  # None if the plan ends here
                 touch = self.planner.send(TouchOutcome(planned, o.ok, preds))
         except StopIteration:
@@ -450,13 +457,24 @@ def live_schedule(path, meta) -> tuple[str, int | None]:
 
 
 def live_estimate(
-    localizer: Localizer, log, mode: str, batch_after_logs: int | None = None
+    localizer: Localizer,
+    log,
+    mode: str,
+    batch_after_logs: int | None = None,
+    shown: Predictions | None = None,
 ) -> Predictions:
     """The estimate after one more point log, as the session shows and stores it: the fast
-    update, or with ``mode`` "batch" (or beyond ``batch_after_logs`` logs) the batch solve."""
+    update, or with ``mode`` "batch" (or beyond ``batch_after_logs`` logs) the batch solve.
+
+    ``shown``: a resumed session's stored estimate for this log. It stands in for a batch
+    solve, which depends on the point logs alone (``Localizer.result``) and costs up to a
+    second per touch: an adaptive session resumed after 100 touches would re-solve 100
+    times before the arm moved again. A fast update always runs, since its state carries
+    on to the next touch; ``varskin replay`` is what recomputes every estimate.
+    """
     fast = localizer.update(log)
     if mode == "batch" or (batch_after_logs is not None and localizer.n_logs > batch_after_logs):
-        return localizer.result()
+        return shown if shown is not None else localizer.result()
     return fast
 
 
