@@ -437,8 +437,8 @@ def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys, monkeypatch
     """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
     stored point logs to the localizer and must land on exactly the stored touches (else the
     resume refuses). The planner gets the batch solves the session stored, not solved again:
-    the only one the resume computes is the final estimate. A complete session resumes to
-    its end without a new touch."""
+    the only one the resume computes is the final estimate, and any stored one missing. A
+    complete session resumes to its end without a new touch."""
     launch = write_launch(tmp_path / "sim_adaptive.yaml", **{"plan.mode": "adaptive"})
     db = tmp_path / "adaptive.db"
     assert main(["calibrate", str(launch), "-o", str(db), "--budget", "28"]) == 0
@@ -462,11 +462,18 @@ def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys, monkeypatch
     monkeypatch.setattr(Localizer, "result", counted)
     assert main(["calibrate", "--resume", str(db)]) == 0
     assert f"resumed after {len(outcomes)} plan touches" in capsys.readouterr().err
-    assert solved_from == [sum(o.ok for o in outcomes)]  # the final estimate alone
+    n_logs = sum(o.ok for o in outcomes)
+    assert solved_from == [n_logs]  # the final estimate alone
     with SessionStore.open(db) as store:
         assert len(store.attempts()) == n_attempts  # the robot touched nothing more
         assert len(store.outcomes()) == len(outcomes)
         assert store.n_frames() >= n_frames
+    # A stored estimate missing (a file from before they were read back) is solved again.
+    with sqlite3.connect(db) as c:
+        c.execute("DELETE FROM estimates WHERE stage = 'live' AND n_logs = 5")
+    solved_from.clear()
+    assert main(["calibrate", "--resume", str(db)]) == 0
+    assert solved_from == [5, n_logs]
 
 
 def _replays_bit_for_bit(db: Path, capsys) -> bool:

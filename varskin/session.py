@@ -7,9 +7,10 @@ of the stream. A touch without contact, with a board gap or with too few frames 
 a bounded number of times; a protective stop pauses the session until someone unlocks the
 arm on the pendant. Each finished touch is committed to the ``SessionStore`` with the live
 estimates after it, so a killed session resumes (``resume=True``) by re-feeding the stored
-point logs to the localizer and the stored outcomes, with the estimates the planner chose
-by, to the planner: both are deterministic, so they reach exactly the state they had, and
-the session carries on from the next plan index.
+point logs to the localizer, and the stored outcomes with the estimates the planner chose
+by to the planner. Both are deterministic: the planner reaches exactly the state it had,
+the localizer one that gives the same estimates, and the session carries on from the next
+plan index.
 
 What happens is also reported as a stream of plain ``SessionEvent``s to a callback (the
 terminal's live view); nothing in the loop depends on who listens.
