@@ -54,8 +54,8 @@ def quiet(argv: list[str]) -> None:
 
 @contextlib.contextmanager
 def stored_estimates_ignored():
-    """The session solves every batch estimate again, as it did before session 66 (the
-    report still reads the stored ones)."""
+    """The session solves every batch estimate again, as it did before session 66 (when it
+    made a fast update before each too); the report still reads the stored ones."""
     real = session.live_estimate
 
     def solved_again(localizer, log, mode, batch_after_logs=None, shown=None):

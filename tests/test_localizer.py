@@ -506,6 +506,37 @@ def test_incremental_result_equals_batch_and_live_updates_are_sane(patch_b):
     assert np.all(gap[both] <= 2.0 * sig[both]), (gap[both] / sig[both]).max()
 
 
+def test_logs_added_without_updates_solve_as_a_batch_and_the_next_update_re_solves(patch_b):
+    """``add()`` stores a log without re-fitting: ``result()`` after each equals the batch
+    solve of the logs so far, exactly; an ``update()`` after adds re-solves everything first
+    (the live view's re-solve of all the logs), not just near its own touch."""
+    s = session(patch_b, "robot", 8)
+    logs = s.point_logs()
+    every = list(logs.logs())
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    for n, log in enumerate(every[:40], start=1):
+        loc.add(log)
+        if n in (12, 40):
+            got = loc.result()
+            want = peakfit.localize(logs.subset(np.arange(n)))
+            assert [p.status for p in got] == [p.status for p in want]
+            assert np.array_equal(got.xy(), want.xy(), equal_nan=True)
+    # Live from the start (its next re-solve due at 32 logs), then four logs added.
+    loc = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    for log in every[:20]:
+        loc.update(log)
+    for log in every[20:24]:
+        loc.add(log)
+    live = loc.update(every[24])
+    re_solved = peakfit.Localizer(logs.sensors, rest=logs.rest, rest_sd=logs.rest_sd)
+    for log in every[:25]:
+        re_solved._append(log)
+    re_solved.solve_all(final=False)
+    want = re_solved._current()
+    assert [p.status for p in live] == [p.status for p in want]
+    assert np.array_equal(live.xy(), want.xy(), equal_nan=True)
+
+
 def test_incremental_order_does_not_change_the_result(patch_a):
     s = session(patch_a, "finger", 9)
     logs = s.point_logs()

@@ -467,16 +467,17 @@ def live_estimate(
     """The estimate after one more point log, as the session shows and stores it: the fast
     update, or with ``mode`` "batch" (or beyond ``batch_after_logs`` logs) the batch solve.
 
-    ``shown``: a resumed session's stored estimate for this log. It stands in for a batch
-    solve, which depends on the point logs alone (``Localizer.result``) and costs up to a
-    second per touch: an adaptive session resumed after 100 touches would re-solve 100
-    times before the arm moved again. A fast update always runs, since its state carries
-    on to the next touch; ``varskin replay`` is what recomputes every estimate.
+    A batch solve depends on the point logs alone (``Localizer.result``), so the log is only
+    added for it: the fast update's re-fits would be thrown away. ``shown``: a resumed
+    session's stored estimate for this log, which stands in for the batch solve. That costs
+    up to a second per touch: an adaptive session resumed after 100 touches would re-solve
+    100 times before the arm moved again. ``varskin replay`` is what recomputes every
+    estimate.
     """
-    fast = localizer.update(log)
-    if mode == "batch" or (batch_after_logs is not None and localizer.n_logs > batch_after_logs):
-        return shown if shown is not None else localizer.result()
-    return fast
+    if mode != "batch" and (batch_after_logs is None or localizer.n_logs < batch_after_logs):
+        return localizer.update(log)
+    localizer.add(log)
+    return shown if shown is not None else localizer.result()
 
 
 def final_estimate(logs: PointLogs, method: str, patch) -> Predictions:

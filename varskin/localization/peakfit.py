@@ -1155,6 +1155,14 @@ class Localizer:
         with _quiet():
             return update(self, log)
 
+    def add(self, log: PointLog) -> None:
+        """Add one touch without re-fitting anything, for a caller that takes ``result()``
+        after it: a live update's re-fits, and its re-solves as the session doubles, would
+        be thrown away. The next ``update()`` re-solves everything first."""
+        if self._append(log):
+            self._dirty = True
+            self._next_full = 0
+
     def _current(self) -> Predictions:
         return _build(self, *_reported(self, live_judge(self)))
 
