@@ -215,8 +215,12 @@ class CalibrationSession:
         if outcomes:
             rest, rest_sd, _ = self.store.baseline() or (None, None, 0)
             self.localizer = self._new_localizer(rest, rest_sd)
-        # What the session showed after each of its point logs, keyed by their number.
-        shown = self.store.estimates("live", LIVE_METHOD) if outcomes else {}
+        # The batch solves the session showed, keyed by their number of point logs (a fast
+        # update's estimate is made again, so none of those is read).
+        after = batch_after(self.settings.live_estimate, self.settings.batch_after_logs)
+        shown = {}
+        if outcomes and after is not None:
+            shown = self.store.estimates("live", LIVE_METHOD, after_logs=after)
         n_logs = 0
         touch: PlannedTouch | None = None
         try:
@@ -457,6 +461,11 @@ def live_schedule(path, meta) -> tuple[str, int | None]:
     return mode, after
 
 
+def batch_after(mode: str, batch_after_logs: int | None) -> int | None:
+    """After how many point logs a session's estimates are batch solves (None: never)."""
+    return 0 if mode == "batch" else batch_after_logs
+
+
 def live_estimate(
     localizer: Localizer,
     log,
@@ -474,7 +483,8 @@ def live_estimate(
     100 times before the arm moved again. ``varskin replay`` is what recomputes every
     estimate.
     """
-    if mode != "batch" and (batch_after_logs is None or localizer.n_logs < batch_after_logs):
+    after = batch_after(mode, batch_after_logs)
+    if after is None or localizer.n_logs < after:
         return localizer.update(log)
     localizer.add(log)
     return shown if shown is not None else localizer.result()

@@ -625,12 +625,17 @@ class SessionStore:
         ]
 
     @_reads
-    def estimates(self, stage: str, method: str | None = None) -> dict[int, Predictions]:
+    def estimates(
+        self, stage: str, method: str | None = None, after_logs: int | None = None
+    ) -> dict[int, Predictions]:
         """Stored estimates of a stage ("live" or "final"), keyed by the number of point logs
-        they were computed from."""
+        they were computed from; with ``after_logs``, only those from more logs than that."""
         sql = "SELECT n_logs, method, sensor, x_mm, y_mm, sigma_mm, snr_db, status FROM estimates"
         sql += " WHERE stage=?" + (" AND method=?" if method else "")
-        args = (stage, method) if method else (stage,)
+        args: tuple = (stage, method) if method else (stage,)
+        if after_logs is not None:
+            sql += " AND n_logs > ?"
+            args += (after_logs,)
         order = {s: i for i, s in enumerate(self.sensors())}
         by_n: dict[int, Predictions] = {}
         for n, m, s, x, y, sig, snr, st in self._conn.execute(sql, args):
