@@ -802,6 +802,56 @@ def test_column_nanmedian_matches_numpy_on_gaps_and_infinities():
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=0)
 
 
+def test_packed_gathers_each_line_s_true_entries_first_as_a_stable_sort_does():
+    """``packed`` (the fits' and the layout prior's gather) against the stable argsort and
+    gather it stands for, along both axes: the same indices, and a mask that is True
+    exactly where the gathered entry was True; all-False lines and an all-False mask (one
+    padded row, nothing True) included."""
+    rng = np.random.default_rng(5)
+    for shape in ((1, 1), (7, 3), (40, 12), (5, 30)):
+        for p in (0.0, 0.2, 0.7, 1.0):
+            mask = rng.random(shape) < p
+            mask[:, 0] = False
+            for axis in (0, 1):
+                order, sel = _maps.packed(mask, axis=axis)
+                full = np.argsort(~mask, axis=axis, kind="stable")
+                M = max(int(mask.sum(axis=axis).max()), 1)
+                want = full[:M] if axis == 0 else full[:, :M]
+                np.testing.assert_array_equal(order, want)
+                np.testing.assert_array_equal(sel, np.take_along_axis(mask, want, axis=axis))
+
+
+def test_floor_trend_is_each_bin_s_low_quantile_joined_by_lines():
+    """``floor_trend`` (with its per-K layout kept between calls) against a plain reference:
+    bins of ~K/8 consecutive touches (at least 10), each bin's "lower" 20th percentile with
+    its invalid touches counted as +inf, a bin whose quantile is invalid taking the median
+    of all bins' quantiles, joined linearly between bin centres and held flat beyond the
+    first and last; K of 20-160 and a K seen twice, with gaps and a whole bin invalid."""
+    rng = np.random.default_rng(8)
+    for K in (20, 33, 80, 100, 160, 33):
+        U = rng.normal(size=(K, 4)) + np.linspace(0, 3, K)[:, None]
+        valid = rng.random((K, 4)) > 0.2
+        valid[:, 0] = True
+        m = max(10, K // 8)
+        edges = np.linspace(0, K, K // m + 1).astype(int)
+        valid[edges[1] : edges[2], 3] = False  # one whole bin of column 3
+        got = _maps.floor_trend(U, valid)
+        centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+        Un = np.where(valid, U, np.inf)
+        for c in range(4):
+            q = np.array(
+                [
+                    np.percentile(Un[a:b, c], 20, method="lower")
+                    for a, b in itertools.pairwise(edges)
+                ]
+            )
+            overall = np.median(q)
+            q[~np.isfinite(q)] = overall if np.isfinite(overall) else 0.0
+            want = np.interp(np.arange(K), centres, q)
+            np.testing.assert_allclose(got[:, c], want, rtol=0, atol=1e-12)
+        assert not np.isfinite(Un[edges[1] : edges[2], 3]).any()
+
+
 def test_the_fit_s_groups_partition_the_sensors_at_the_least_padded_cost():
     """``_reach_groups`` splits sensors by their touches within reach: every sensor in one
     group exactly once, and the split the exact optimum over every way to cut the sorted

@@ -26,6 +26,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from varskin.localization import _peak_model as pm
+from varskin.localization._maps import packed
 
 if TYPE_CHECKING:
     from varskin.localization.peakfit import Localizer
@@ -62,11 +63,10 @@ def joint_step(loc: Localizer, damping: float = 1e-3) -> bool:
     V = loc._V[:K][:, cols] * loc._sign
     valid = np.isfinite(V) & ~loc._clipped(cols) & ~loc._missed[:K, None]
     inside = (dist <= reach[None, :]) & valid
-    M = max(int(inside.sum(axis=0).max()), 1)
-    order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
-    sel = np.take_along_axis(inside, order, axis=0)
-    tau = np.take_along_axis(loc._tau()[:, None] - f.tc[cols][None, :], order, axis=0)
-    U = (np.take_along_axis(V, order, axis=0) - f.floor[cols]) / f.amp[cols]
+    order, sel = packed(inside)  # (M, S) touch indices
+    at = (order, np.arange(S))
+    tau = (loc._tau()[:, None] - f.tc[cols][None, :])[at]
+    U = (V[at] - f.floor[cols]) / f.amp[cols]
     U = np.where(sel, U, 0.0)
     sc = np.maximum(f.scale[cols], 1e-9)
     rho = loc._ridge_width(theta)

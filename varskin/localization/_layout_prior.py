@@ -25,6 +25,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from varskin.localization._maps import packed
+
 # How far (in sds of the prediction) a crossing may lie from the line its wire-mates draw
 # before its variance takes in that distance.
 OFF_LINE_Z = 4.0
@@ -75,9 +77,7 @@ def shrink_to_wires(
         return out, out_var
     member, count, has_prior = member[keep], count[keep], has_prior[keep]
     mu, s2 = mu[keep], s2[keep]
-    M = int(count.max())
-    order = np.argsort(~member, axis=1, kind="stable")[:, :M]  # (G, M) sensor indices
-    mask = np.take_along_axis(member, order, axis=1)
+    order, mask = packed(member, axis=1)  # (G, M) sensor indices
     c = np.where(mask, coord[order], 0.0)
     v = np.where(mask, var[order], 1.0)
     t = np.where(mask, along[order], 0.0)
@@ -319,9 +319,7 @@ def _design_map(coord, var, in_group, member, design, family, floor_mm: float) -
     # Sensors outside a wire may have no coordinate at all (NaN): mask, never multiply by 0.
     level = (wm * np.where(member, coord[None, :], 0.0)).sum(axis=1) / wsum
     level_var = 1.0 / wsum
-    W = int(rows.sum(axis=1).max())
-    order = np.argsort(~rows, axis=1, kind="stable")[:, :W]
-    mask = np.take_along_axis(rows, order, axis=1)
+    order, mask = packed(rows, axis=1)
     count = mask.sum(axis=1)
     lv = np.where(mask, level[order], 0.0)
     lvar = np.where(mask, level_var[order], 1.0)

@@ -7,6 +7,8 @@ update does so every touch, so these must be fast as well as NaN-proof.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 
@@ -34,31 +36,60 @@ def floor_trend(U: np.ndarray, valid: np.ndarray) -> np.ndarray:
     bin ignores the few touches near the sensor, and bins are joined by straight lines.
     """
     K, S = U.shape
-    m = max(10, K // 8)
-    if 2 * m > K:
+    if 2 * max(10, K // 8) > K:
         q = np.percentile(np.where(valid, U, np.inf), 20, axis=0, method="lower")
         return np.broadcast_to(np.where(np.isfinite(q), q, 0.0), (K, S))
-    edges = np.linspace(0, K, K // m + 1).astype(int)
-    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    bin_of, pos, (nb, mx), rank, j, t = _trend_bins(K)
     # Invalid cells sort last (+inf), so a low quantile ignores them while they are few.
-    Un = np.where(valid, U, np.inf)
     # All bins at once: pad each to the longest with +inf (sorts last), sort within bins,
     # and take each bin's own "lower" 20th-percentile rank.
-    sizes = np.diff(edges)
-    nb, mx = sizes.size, int(sizes.max())
-    pos = np.arange(K) - np.repeat(edges[:-1], sizes)
     padded = np.full((nb, mx, S), np.inf)
-    padded[np.repeat(np.arange(nb), sizes), pos] = Un
+    padded[bin_of, pos] = np.where(valid, U, np.inf)
     padded.sort(axis=1)
-    rank = np.floor(0.2 * (sizes - 1)).astype(int)
     q = padded[np.arange(nb), rank]
     # Bins without any valid value borrow the sensor's overall level.
-    overall = nanmedian_cols(q) if np.isfinite(q).any() else np.zeros(S)
-    q = np.where(np.isfinite(q), q, np.where(np.isfinite(overall), overall, 0.0)[None, :])
+    empty = ~np.isfinite(q)
+    if empty.any():
+        overall = nanmedian_cols(q) if not empty.all() else np.zeros(S)
+        q = np.where(empty, np.where(np.isfinite(overall), overall, 0.0)[None, :], q)
+    return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
+
+
+@functools.lru_cache(maxsize=8)
+def _trend_bins(K: int) -> tuple:
+    """``floor_trend``'s layout for K touches, which depends on K alone: each touch's bin
+    and place in it, the padded shape, each bin's quantile rank, and each touch's two bins
+    and weight for the interpolation. Kept: a live update asks for it every touch."""
+    m = max(10, K // 8)
+    edges = np.linspace(0, K, K // m + 1).astype(int)
+    centres = 0.5 * (edges[:-1] + edges[1:] - 1)
+    sizes = np.diff(edges)
+    pos = np.arange(K) - np.repeat(edges[:-1], sizes)
+    rank = np.floor(0.2 * (sizes - 1)).astype(int)
     k = np.arange(K)
     j = np.clip(np.searchsorted(centres, k) - 1, 0, len(centres) - 2)
     t = np.clip((k - centres[j]) / (centres[j + 1] - centres[j]), 0.0, 1.0)
-    return q[j] * (1 - t)[:, None] + q[j + 1] * t[:, None]
+    bin_of = np.repeat(np.arange(sizes.size), sizes)
+    for a in (bin_of, pos, rank, j, t):
+        a.flags.writeable = False  # shared by every call with this K
+    return bin_of, pos, (sizes.size, int(sizes.max())), rank, j, t
+
+
+def packed(mask: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Each line of the 2-D ``mask`` along ``axis`` with its True entries first: the indices
+    along ``axis``, cut to M, the most True any line has (at least 1), and which of them
+    are True.
+
+    How the fits gather each sensor's touches (and the layout prior each wire's sensors)
+    into arrays padded only to the largest count. The gathered mask is the first ``count``
+    entries of each line, so it is made by a comparison instead of a gather.
+    """
+    counts = mask.sum(axis=axis)
+    M = max(int(counts.max(initial=0)), 1)
+    order = np.argsort(~mask, axis=axis, kind="stable")
+    if axis == 0:
+        return order[:M], np.arange(M)[:, None] < counts[None, :]
+    return order[:, :M], np.arange(M)[None, :] < counts[:, None]
 
 
 def span_by_sensor(values: np.ndarray, cols: np.ndarray, n: int) -> np.ndarray:

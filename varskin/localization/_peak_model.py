@@ -35,6 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from varskin.localization._maps import packed
+
 SHAPES = ("lorentzian", "gaussian", "exponential")
 _LN2 = float(np.log(2.0))
 _TIP = 0.05  # the exponential's rounded top, in half widths
@@ -472,13 +474,12 @@ def _fit_group(
     G_all = np.ones(K) if gain is None else gain
     # Gather each sensor's touches within reach into (M, S) arrays so a full board costs
     # what its neighbourhoods cost.
-    M = max(int(inside.sum(axis=0).max()), 1)
-    order = np.argsort(~inside, axis=0, kind="stable")[:M]  # (M, S) touch indices
-    sel = np.take_along_axis(inside, order, axis=0)
+    order, sel = packed(inside)  # (M, S) touch indices
     start_xy = theta[:, :2].copy()
     Pg = P[order]  # (M, S, 2)
-    tau = np.take_along_axis(tau, order, axis=0)
-    Uz = np.where(sel, np.take_along_axis(U, order, axis=0), 0.0)
+    cols = np.arange(S)
+    tau = tau[order, cols]
+    Uz = np.where(sel, U[order, cols], 0.0)
     vf = sel.astype(float)
     gain = G_all[order]
     P = Pg

@@ -18,7 +18,7 @@ import numpy as np
 from varskin.localization import _peak_model as pm
 from varskin.localization._hull import HULL_PRIOR, hull_distance, pull_into_hull
 from varskin.localization._layout_prior import both_axes, shrink_to_layout
-from varskin.localization._maps import span_by_sensor
+from varskin.localization._maps import packed, span_by_sensor
 from varskin.localization._settling import unfollowed
 from varskin.localization._wire_inference import infer_wires
 from varskin.predictions import OK, R95_PER_AXIS_SD
@@ -352,9 +352,8 @@ def _mean_overlap(inside: np.ndarray, groups: np.ndarray, usable: np.ndarray) ->
         return out
     # Every wire at once, padded to (G, M) like the layout prior: a live update calls
     # this every touch.
-    M = int(member.sum(axis=1).max())
-    order = np.argsort(~member, axis=1, kind="stable")[:, :M]
-    mask = np.take_along_axis(member, order, axis=1)
+    order, mask = packed(member, axis=1)
+    M = order.shape[1]
     # Counts of shared touches: float32 holds them exactly (a session of up to 2^24
     # touches), at half the memory traffic of float64, and the float64 result is the same.
     A = (inside[:, order] & mask[None]).astype(np.float32).transpose(1, 2, 0)  # (G, M, K)

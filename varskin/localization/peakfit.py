@@ -34,7 +34,7 @@ from varskin.localization._hull import ProbeHull
 from varskin.localization._joint import joint_step
 from varskin.localization._layout_prior import design_scatter_mm
 from varskin.localization._live_update import live_judge, update
-from varskin.localization._maps import floor_trend, nanmedian_cols
+from varskin.localization._maps import floor_trend, nanmedian_cols, packed
 from varskin.localization._second_peaks import SEED_RADIUS_SPACINGS, second_peaks
 from varskin.localization._shape_screen import favoured_shape
 from varskin.localization._statuses import DEAD, judge, unrisen_weak, window_members
@@ -631,7 +631,8 @@ class Localizer:
         warm = warm & f.fitted[cols] & ~far & np.isfinite(f.theta[cols]).all(axis=1)
         if (~warm).any():
             theta0[~warm] = self._initial_shape(P, D[:, ~warm], valid[:, ~warm], h, theta0[~warm])
-        theta0[:, pm.B0] += np.take_along_axis(U - D, kmax[None, :], axis=0)[0]
+        at_top = (kmax, np.arange(cols.size))
+        theta0[:, pm.B0] += U[at_top] - D[at_top]
         if warm.any():
             # Re-express the previous fit in the new normalization and peak time, start there.
             c = cols[warm]
@@ -771,13 +772,11 @@ class Localizer:
         )
         dist = np.hypot(P0[:, 0:1] - thc[None, :, pm.SX], P0[:, 1:2] - thc[None, :, pm.SY])
         inside = dist <= reach[None, :]
-        M = max(int(inside.sum(axis=1).max()), 1)
-        order = np.argsort(~inside, axis=1, kind="stable")[:, :M]  # (R, M) into cols
-        near = np.take_along_axis(inside, order, axis=1)
+        order, near = packed(inside, axis=1)  # (R, M) into cols
         sel = cols[order]  # (R, M) sensor indices
         th = f.theta[sel]  # (R, M, P)
         tau = self._tau()[rows][:, None] - f.tc[sel]
-        V = np.take_along_axis(self._V[rows], sel, axis=1) * self._sign
+        V = self._V[rows[:, None], sel] * self._sign
         U = (V - f.floor[sel]) / f.amp[sel]
         valid = np.isfinite(U) & near
         if self.rest is not None and self._raw_counts():
@@ -818,9 +817,14 @@ class Localizer:
                 step = np.stack(
                     [np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(H, g, strict=True)]
                 )
-            lg = np.clip(lg + np.clip(step[:, 0], -1.0, 1.0), *pm.LOG_GAIN_RANGE)
+            # minimum/maximum, not np.clip: the same values at a fraction of the overhead
+            # (a live update runs this loop every touch).
+            lo, hi = pm.LOG_GAIN_RANGE
+            lg = np.minimum(np.maximum(lg + np.minimum(np.maximum(step[:, 0], -1.0), 1.0), lo), hi)
             lim = pm.offset_limit(self.place_sd_mm)
-            d = np.clip(d + np.clip(step[:, 1:], -lim, lim), -lim, lim)
+            d = np.minimum(
+                np.maximum(d + np.minimum(np.maximum(step[:, 1:], -lim), lim), -lim), lim
+            )
             if step_tol and (np.abs(step) < step_tol * np.sqrt(1.0 / prior)).all():
                 break
         try:
