@@ -110,7 +110,7 @@ def update(loc: Localizer, log: PointLog) -> Predictions:
     # The last batch solve's settling verdict judged maps these sensors have outgrown.
     loc._moved_by_settling[todo] = False
     if todo.size:
-        loc._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS)
+        loc._solve(todo, ~new_top[todo], max_iter=UPDATE_ITERATIONS, live=True)
     # The new touch's own gain and placement come from the models it has just updated
     # (judged by models that had not seen it, a first touch near a sensor would be
     # "explained" by a wrong offset).

@@ -86,6 +86,14 @@ class FitSettings:
     ridge_prior_sd: float = 0.1  # wire-ridge height prior, in peak heights
     max_iter: int = 100
     step_tol_mm: float = 2e-4
+    # The error bars (and n_eff) from the last iteration's normal equations, at the fit
+    # before its last step, instead of from one more pass at the fit's end: for a live
+    # update's three warm iterations, where that pass was about 5 % of the update. The fit
+    # itself is the same. A re-fit the live view reports `ok` has converged, its last step
+    # under 0.02 spacings (~0.1 mm; or none taken); one still moving is `irregular` there
+    # (docs/benchmarks.md, "A live fit's error bars from its last iteration"). Used only
+    # where every sensor took the last iteration.
+    cov_at_last_iteration: bool = False
     shape: str = "lorentzian"  # the bump's profile, one of SHAPES
 
 
@@ -484,6 +492,7 @@ def _fit_group(
     gain = G_all[order]
     P = Pg
     lam = np.full(S, 1e-3)
+    last = None
     warm_scale = scale0 is not None
     scale = np.maximum(np.full(S, 0.3) if scale0 is None else scale0, noise_floor)
     active = np.ones(S, bool)
@@ -597,6 +606,7 @@ def _fit_group(
             lam_i[sub[ok]] *= 0.3
             lam_i[sub[~ok]] *= 8.0
         lam[idx] = np.minimum(np.maximum(lam_i, 1e-9), 1e9)
+        last = (m, J, res, win, wts, H) if idx.size == S else None
         theta[idx] = th + step
         moved = np.hypot(step[:, SX], step[:, SY])
         last_step[idx] = np.where(accepted, moved, last_step[idx])
@@ -608,12 +618,15 @@ def _fit_group(
         converged[idx[done & ~accepted]] = True  # no better point nearby: a local minimum
         active[idx[done]] = False
     # Final weights and covariance at the solution.
-    m, J = jacobian(P, tau, theta, gain, rho, s.shape)
-    res = Uz - m
-    win = fit_window(theta, np.arange(S))
-    wts = robust_weights(win, res, scale)
-    H, _ = normal_equations(wts, J, res)
-    H = H + prior_hessian(theta, np.arange(S)) * (scale * scale)[:, None, None]
+    if s.cov_at_last_iteration and last is not None:
+        m, J, res, win, wts, H = last
+    else:
+        m, J = jacobian(P, tau, theta, gain, rho, s.shape)
+        res = Uz - m
+        win = fit_window(theta, np.arange(S))
+        wts = robust_weights(win, res, scale)
+        H, _ = normal_equations(wts, J, res)
+        H = H + prior_hessian(theta, np.arange(S)) * (scale * scale)[:, None, None]
     # Residual variance of the fit (robustly weighted), with the dof the window leaves.
     n_eff = wts.sum(axis=0)
     rss = (wts * res * res).sum(axis=0)

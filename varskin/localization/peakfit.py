@@ -594,8 +594,10 @@ class Localizer:
         warm: np.ndarray,
         max_iter: int | None = None,
         hold_window: bool = False,
+        live: bool = False,
     ) -> None:
-        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit."""
+        """(Re)fit sensors ``cols``; ``warm`` (bool per col) starts from the previous fit;
+        ``live``: a live update's re-fit (its error bars from the last iteration)."""
         K = self._k
         if cols.size == 0 or K == 0:
             return
@@ -653,7 +655,13 @@ class Localizer:
             theta0,
             min_radius,
             np.maximum(noise, 1e-9),
-            self.settings if max_iter is None else replace(self.settings, max_iter=max_iter),
+            self.settings
+            if max_iter is None and not live
+            else replace(
+                self.settings,
+                max_iter=self.settings.max_iter if max_iter is None else max_iter,
+                cov_at_last_iteration=live,
+            ),
             gain=np.exp(self._lg[:K]),
             width_mean=None if self.shared_lw is None else np.tile(self.shared_lw, (cols.size, 1)),
             ridge_width=self._ridge_width(theta0),
