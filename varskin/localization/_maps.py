@@ -2,7 +2,8 @@
 
 Why a module of its own: the batch solve, the live update and the settling check all take a
 robust level of each sensor's readings and its slow floor over the session, and a live
-update does so every touch, so these must be fast as well as NaN-proof.
+update does so every touch, so these must be fast as well as NaN-proof. The fits gather
+each sensor's touches (``packed``) from these maps every touch too.
 """
 
 from __future__ import annotations

@@ -91,8 +91,8 @@ class FitSettings:
     # update's three warm iterations, where that pass was about 5 % of the update. The fit
     # itself is the same. A re-fit the live view reports `ok` has converged, its last step
     # under 0.02 spacings (~0.1 mm; or none taken); one still moving is `irregular` there
-    # (docs/benchmarks.md, "A live fit's error bars from its last iteration"). Used only
-    # where every sensor took the last iteration.
+    # (docs/benchmarks.md, "A live update's fixed costs, and its re-fits' error bars from
+    # the last iteration"). Used only where every sensor took the last iteration.
     cov_at_last_iteration: bool = False
     shape: str = "lorentzian"  # the bump's profile, one of SHAPES
 
