@@ -842,16 +842,16 @@ def test_packed_gathers_each_line_s_true_entries_first_as_a_stable_sort_does():
     """``packed`` (the fits' and the layout prior's gather) against the stable argsort and
     gather it stands for, along both axes: the same indices, and a mask that is True
     exactly where the gathered entry was True; all-False lines and an all-False mask (one
-    padded row, nothing True) included."""
+    padded row, nothing True) included, and lines with no entries (nothing to pad)."""
     rng = np.random.default_rng(5)
-    for shape in ((1, 1), (7, 3), (40, 12), (5, 30)):
+    for shape in ((1, 1), (7, 3), (40, 12), (5, 30), (0, 3), (3, 0)):
         for p in (0.0, 0.2, 0.7, 1.0):
             mask = rng.random(shape) < p
-            mask[:, 0] = False
+            mask[:, :1] = False
             for axis in (0, 1):
                 order, sel = _maps.packed(mask, axis=axis)
                 full = np.argsort(~mask, axis=axis, kind="stable")
-                M = max(int(mask.sum(axis=axis).max()), 1)
+                M = max(int(mask.sum(axis=axis).max(initial=0)), 1)
                 want = full[:M] if axis == 0 else full[:, :M]
                 np.testing.assert_array_equal(order, want)
                 np.testing.assert_array_equal(sel, np.take_along_axis(mask, want, axis=axis))

@@ -78,8 +78,8 @@ def _trend_bins(K: int) -> tuple:
 
 def packed(mask: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Each line of the 2-D ``mask`` along ``axis`` with its True entries first: the indices
-    along ``axis``, cut to M, the most True any line has (at least 1), and which of them
-    are True.
+    along ``axis``, cut to M, the most True any line has (at least 1, if the lines have
+    any entries), and which of them are True.
 
     How the fits gather each sensor's touches (and the layout prior each wire's sensors)
     into arrays padded only to the largest count. The gathered mask is the first ``count``
@@ -88,9 +88,12 @@ def packed(mask: np.ndarray, axis: int = 0) -> tuple[np.ndarray, np.ndarray]:
     counts = mask.sum(axis=axis)
     M = max(int(counts.max(initial=0)), 1)
     order = np.argsort(~mask, axis=axis, kind="stable")
+    # Lines with no entries at all (no touches yet) keep none: M = 0 there.
     if axis == 0:
-        return order[:M], np.arange(M)[:, None] < counts[None, :]
-    return order[:, :M], np.arange(M)[None, :] < counts[:, None]
+        order = order[:M]
+        return order, np.arange(order.shape[0])[:, None] < counts[None, :]
+    order = order[:, :M]
+    return order, np.arange(order.shape[1])[None, :] < counts[:, None]
 
 
 def span_by_sensor(values: np.ndarray, cols: np.ndarray, n: int) -> np.ndarray:
