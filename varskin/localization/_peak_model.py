@@ -171,11 +171,16 @@ def window(P: np.ndarray, theta: np.ndarray, min_radius: float, s: FitSettings) 
     return out
 
 
+def clamp(x, lo, hi):
+    """``np.clip(x, lo, hi)``: the same values (NaN stays NaN) at a fraction of its call
+    overhead, which counts in the fits' loops and a live update's."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 def _taper(d: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """The window's weight at distances ``d`` from the peak: 1 up to ``radius`` R, a cosine
     down to 0 at 1.5 R, 0 beyond."""
-    # minimum/maximum, not np.clip: the same values at a fraction of the call overhead.
-    u = np.minimum(np.maximum((d / radius - 1.0) * 2.0, 0.0), 1.0)
+    u = clamp((d / radius - 1.0) * 2.0, 0.0, 1.0)
     return 0.5 * (1.0 + np.cos(np.pi * u))
 
 
@@ -589,11 +594,11 @@ def _fit_group(
                         for h, gg in zip(Hd, g[todo], strict=False)
                     ]
                 )
-            d[:, WIDTHS] = np.minimum(np.maximum(d[:, WIDTHS], -0.5), 0.5)
-            d[:, :2] = np.minimum(np.maximum(d[:, :2], -0.5 * min_radius), 0.5 * min_radius)
+            d[:, WIDTHS] = clamp(d[:, WIDTHS], -0.5, 0.5)
+            d[:, :2] = clamp(d[:, :2], -0.5 * min_radius, 0.5 * min_radius)
             cand = th[todo] + d
             cand[:, AMP] = np.maximum(cand[:, AMP], 1e-6)
-            cand[:, WIDTHS] = np.minimum(np.maximum(cand[:, WIDTHS], lw_lo), lw_hi)
+            cand[:, WIDTHS] = clamp(cand[:, WIDTHS], lw_lo, lw_hi)
             all_todo = todo.all()
             cols = sub_all if all_todo else idx[todo]
             ok = cost(cand, sc[todo], cols, win if all_todo else win[:, todo]) <= c0[todo] * (
@@ -605,8 +610,9 @@ def _fit_group(
             accepted[sub[ok]] = True
             lam_i[sub[ok]] *= 0.3
             lam_i[sub[~ok]] *= 8.0
-        lam[idx] = np.minimum(np.maximum(lam_i, 1e-9), 1e9)
-        last = (m, J, res, win, wts, H) if idx.size == S else None
+        lam[idx] = clamp(lam_i, 1e-9, 1e9)
+        if s.cov_at_last_iteration:  # kept only when asked for: a board's J is large
+            last = (m, J, res, win, wts, H) if idx.size == S else None
         theta[idx] = th + step
         moved = np.hypot(step[:, SX], step[:, SY])
         last_step[idx] = np.where(accepted, moved, last_step[idx])
@@ -618,7 +624,7 @@ def _fit_group(
         converged[idx[done & ~accepted]] = True  # no better point nearby: a local minimum
         active[idx[done]] = False
     # Final weights and covariance at the solution.
-    if s.cov_at_last_iteration and last is not None:
+    if last is not None:
         m, J, res, win, wts, H = last
     else:
         m, J = jacobian(P, tau, theta, gain, rho, s.shape)

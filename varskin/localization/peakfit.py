@@ -647,6 +647,13 @@ class Localizer:
             old[:, pm.B0] += b1 * dt + b2 * dt * dt
             old[:, pm.B1] = b1 + 2.0 * b2 * dt
             theta0[warm] = old
+        settings = self.settings
+        if max_iter is not None or live:
+            settings = replace(
+                settings,
+                max_iter=settings.max_iter if max_iter is None else max_iter,
+                cov_at_last_iteration=live,
+            )
         res = pm.fit(
             P,
             tau,
@@ -655,13 +662,7 @@ class Localizer:
             theta0,
             min_radius,
             np.maximum(noise, 1e-9),
-            self.settings
-            if max_iter is None and not live
-            else replace(
-                self.settings,
-                max_iter=self.settings.max_iter if max_iter is None else max_iter,
-                cov_at_last_iteration=live,
-            ),
+            settings,
             gain=np.exp(self._lg[:K]),
             width_mean=None if self.shared_lw is None else np.tile(self.shared_lw, (cols.size, 1)),
             ridge_width=self._ridge_width(theta0),
@@ -825,14 +826,9 @@ class Localizer:
                 step = np.stack(
                     [np.linalg.lstsq(h, gg, rcond=None)[0] for h, gg in zip(H, g, strict=True)]
                 )
-            # minimum/maximum, not np.clip: the same values at a fraction of the overhead
-            # (a live update runs this loop every touch).
-            lo, hi = pm.LOG_GAIN_RANGE
-            lg = np.minimum(np.maximum(lg + np.minimum(np.maximum(step[:, 0], -1.0), 1.0), lo), hi)
+            lg = pm.clamp(lg + pm.clamp(step[:, 0], -1.0, 1.0), *pm.LOG_GAIN_RANGE)
             lim = pm.offset_limit(self.place_sd_mm)
-            d = np.minimum(
-                np.maximum(d + np.minimum(np.maximum(step[:, 1:], -lim), lim), -lim), lim
-            )
+            d = pm.clamp(d + pm.clamp(step[:, 1:], -lim, lim), -lim, lim)
             if step_tol and (np.abs(step) < step_tol * np.sqrt(1.0 / prior)).all():
                 break
         try:
