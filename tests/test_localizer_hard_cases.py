@@ -460,7 +460,7 @@ def test_where_no_sensor_is_far_the_settling_is_read_from_the_flanks():
     xy = np.column_stack([np.repeat(np.arange(8) * 4.5 + 4.25, 2), np.tile([6.0, 14.0], 8)])
     w = np.full(N, 6.5)
     level = rng.choice([-1, 1], N) * rng.uniform(30, 120, N)
-    course = 1 - np.exp(-tau / 1.0)
+    course = 1 - np.exp(-tau)
     d = np.hypot(P[:, 0:1] - xy[:, 0], P[:, 1:2] - xy[:, 1])
     bump = 170.0 / (1 + (d / w) ** 2)
     V = level * course[:, None] + bump + rng.normal(0, 2.0, (K, N))
