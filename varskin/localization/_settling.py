@@ -61,7 +61,7 @@ def board_settling(
     touches landed, ``tau`` (K,) session time, ``xy`` (N, 2) and ``w`` (N,) the fitted peaks
     and half widths, ``usable`` (N,) which fits to trust, ``noise`` (N,) per-touch noise sd.
     Returns ``course`` (K,): the fraction of its settled level a sensor's floor had reached
-    at each touch (0 at rest, NaN where no far sensor tells), and ``level`` (N,): each
+    at each touch (0 at rest, NaN where no sensor tells), and ``level`` (N,): each
     sensor's settled floor (NaN where unknown), both in the values' units.
 
     ``bump(rows)`` gives the fitted models' bumps at touches ``rows`` ((len(rows), N), the
