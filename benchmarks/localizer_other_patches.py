@@ -45,7 +45,7 @@ def crossing_patch(name, size_mm, tx_x_mm, rx_y_mm, missing=()) -> Patch:
     return patch_from_dict(data, name)
 
 
-# Patch B's TX positions, mirrored: the dense end first.
+# Patch B's TX positions (configs/patch_b.yaml).
 _B_TX = (5.544, 34.119, 59.519, 81.769, 100.819, 116.694, 129.394, 138.919, 145.269, 148.444)
 LAYOUTS = {
     # 6 x 5 crossings on a 60 mm square: a 20 x 5 grid leaves 12 mm between rows.
@@ -59,6 +59,7 @@ LAYOUTS = {
         crossing_patch("dense8x4", (40, 20), np.arange(8) * 4.5 + 4.25, np.arange(4) * 4.5 + 3.25),
         [(20, 5), (16, 8)],
     ),
+    # Patch B's TX positions mirrored (its dense end first), with four RX wires.
     "mirrored_b4": (
         crossing_patch("mirrored_b4", (152.4, 25.4), 152.4 - np.array(_B_TX), [20, 14, 9, 4]),
         [(20, 5)],
