@@ -17,6 +17,7 @@ import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loa
 # isort: split
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 from localizer_live import seed_range
@@ -28,21 +29,17 @@ from varskin.simulate import simulate_session, uniform_grid
 
 
 def crossing_patch(name, size_mm, tx_x_mm, rx_y_mm, missing=()) -> Patch:
-    """A patch with a sensor at every (TX, RX) crossing but those in ``missing``."""
-    sensors = [
-        {"name": f"S{i * len(rx_y_mm) + j + 1}", "tx": i, "rx": j}
-        for i in range(len(tx_x_mm))
-        for j in range(len(rx_y_mm))
-        if (i, j) not in missing
-    ]
+    """A patch with a sensor at every (TX, RX) crossing but those in ``missing``, named as
+    a patch config without a sensor list names them."""
     data = {
         "name": name,
         "size_mm": list(size_mm),
         "tx_x_mm": [float(x) for x in tx_x_mm],
         "rx_y_mm": [float(y) for y in rx_y_mm],
-        "sensors": sensors,
     }
-    return patch_from_dict(data, name)
+    patch = patch_from_dict(data, name)
+    kept = tuple(s for s in patch.sensors if (s.tx, s.rx) not in missing)
+    return replace(patch, sensors=kept)
 
 
 # Patch B's TX positions (configs/patch_b.yaml).

@@ -420,6 +420,19 @@ def test_a_board_corner_the_settling_moved_is_placed_by_its_later_touches(
         assert err(pred, s.truth, 0) > 4.0 * s1.sigma_mm
 
 
+def _settling_readings(rng, tau, P, xy, w, peak):
+    """Readings of sensors at ``xy`` (half widths ``w``) touched at ``P``, each settling
+    with the course 1 - exp(-tau) to its own level of 30-120 counts either way, plus a
+    Lorentzian bump of ``peak`` counts and noise of sd 2: (V, course, level, bump)."""
+    N = len(xy)
+    level = rng.choice([-1, 1], N) * rng.uniform(30, 120, N)
+    course = 1 - np.exp(-tau)
+    d = np.hypot(P[:, 0:1] - xy[:, 0], P[:, 1:2] - xy[:, 1])
+    bump = peak / (1 + (d / w) ** 2)
+    V = level * course[:, None] + bump + rng.normal(0, 2.0, bump.shape)
+    return V, course, level, bump
+
+
 def test_the_board_settling_is_read_from_the_far_touches():
     """Every sensor's floor settles with one time course (each by its own level): the
     course comes back from the touches far from each sensor's peak, the levels too; with no
@@ -430,11 +443,7 @@ def test_the_board_settling_is_read_from_the_far_touches():
     P = np.column_stack([np.repeat(np.arange(20) * 7.6, 5), np.tile(np.arange(5) * 5.0, 20)])
     xy = np.column_stack([np.linspace(5, 145, N), np.tile([5.0, 15.0], N // 2)])
     w = np.full(N, 8.0)
-    level = rng.choice([-1, 1], N) * rng.uniform(30, 120, N)
-    course = 1 - np.exp(-tau)
-    d = np.hypot(P[:, 0:1] - xy[:, 0], P[:, 1:2] - xy[:, 1])
-    bump = 150.0 / (1 + (d / w) ** 2)
-    V = level * course[:, None] + bump + rng.normal(0, 2.0, (K, N))
+    V, course, level, bump = _settling_readings(rng, tau, P, xy, w, 150.0)
     got, lv = board_settling(V, P, tau, xy, w, np.ones(N, bool), np.full(N, 2.0))
     assert np.nanmax(np.abs(got - course)) < 0.08
     assert np.isfinite(got).all()
@@ -459,11 +468,7 @@ def test_where_no_sensor_is_far_the_settling_is_read_from_the_flanks():
     )
     xy = np.column_stack([np.repeat(np.arange(8) * 4.5 + 4.25, 2), np.tile([6.0, 14.0], 8)])
     w = np.full(N, 6.5)
-    level = rng.choice([-1, 1], N) * rng.uniform(30, 120, N)
-    course = 1 - np.exp(-tau)
-    d = np.hypot(P[:, 0:1] - xy[:, 0], P[:, 1:2] - xy[:, 1])
-    bump = 170.0 / (1 + (d / w) ** 2)
-    V = level * course[:, None] + bump + rng.normal(0, 2.0, (K, N))
+    V, course, level, bump = _settling_readings(rng, tau, P, xy, w, 170.0)
     args = (V, P, tau, xy, w, np.ones(N, bool), np.full(N, 2.0))
     far_course, far_level = board_settling(*args)
     assert np.isnan(far_course[:30]).all() and np.isnan(far_level).any()
@@ -488,16 +493,10 @@ def test_a_small_dense_patch_s_sensors_probed_while_it_settles_are_placed():
     From the flanks it is taken out of their readings."""
     from varskin.patch import patch_from_dict
 
+    # A sensor at every crossing, named as the paper does (S1, S2, ... y fastest).
     tx, rx = np.arange(8) * 4.5 + 4.25, np.arange(4) * 4.5 + 3.25
-    sensors = [{"name": f"S{4 * i + j + 1}", "tx": i, "rx": j} for i in range(8) for j in range(4)]
     patch = patch_from_dict(
-        {
-            "name": "dense",
-            "size_mm": [40, 20],
-            "tx_x_mm": list(tx),
-            "rx_y_mm": list(rx),
-            "sensors": sensors,
-        },
+        {"name": "dense", "size_mm": [40, 20], "tx_x_mm": list(tx), "rx_y_mm": list(rx)},
         "dense",
     )
     s = simulate_session(patch, uniform_grid(patch, 20, 5), "robot", 0)

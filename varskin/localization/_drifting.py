@@ -65,15 +65,15 @@ def settling_of(loc: Localizer) -> tuple[np.ndarray, np.ndarray] | None:
     if loc.rest_sd is not None:  # logs without sample sds: the baseline's
         noise = np.where(np.isfinite(noise), noise, loc.rest_sd)
     P = loc._P[:K] + loc._dxy[:K]
-    gain = np.exp(loc._lg[:K])
-    rho = loc._ridge_width(f.theta)
-    shape = loc.settings.shape
 
     def bump(rows: np.ndarray) -> np.ndarray:
-        # The fitted models less their floors, at those touches, in the readings' units.
+        # The fitted models less their floors, at those touches, in the readings' units
+        # (asked for only where some touch has no far sensor).
         zero = np.zeros((rows.size, f.theta.shape[0]))
+        gain, rho = np.exp(loc._lg[rows]), loc._ridge_width(f.theta)
         with np.errstate(all="ignore"):
-            u = pm.model(P[rows], zero, f.theta, gain[rows], rho, shape) - pm.floor(zero, f.theta)
+            u = pm.model(P[rows], zero, f.theta, gain, rho, loc.settings.shape)
+            u = u - pm.floor(zero, f.theta)
         return np.where(usable, u * f.amp, np.nan)
 
     return board_settling(V, P, loc._tau(), f.theta[:, :2], w, usable, noise, bump)

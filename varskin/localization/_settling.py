@@ -75,9 +75,9 @@ def board_settling(
     if K < 2 * MIN_LATE_TOUCHES or not usable.any():
         return course, level
     d = np.hypot(P[:, 0:1] - xy[None, :, 0], P[:, 1:2] - xy[None, :, 1])
-    is_late = (tau >= np.median(tau))[:, None]
+    late = tau >= np.median(tau)
     far = (d > FAR_WIDTHS * w[None, :]) & np.isfinite(V) & usable[None, :]
-    _levels(level, V, far & is_late)
+    _levels(level, V, far & late[:, None])
     _course(course, V, far, level, noise)
     if bump is None or not np.isnan(course).any():
         return course, level
@@ -85,14 +85,14 @@ def board_settling(
     # sensor is far from, and the levels of the sensors without enough late far touches.
     unknown = np.isnan(level) & usable
     flank = (d > FLANK_WIDTHS * w[None, :]) & np.isfinite(V) & usable[None, :]
-    need = np.isnan(course) | (is_late[:, 0] & unknown.any())
+    need = np.isnan(course) | (late & unknown.any())
     rows = np.flatnonzero(flank.any(axis=1) & need)
     if rows.size == 0:
         return course, level
     Vf = np.full_like(V, np.nan)
     Vf[rows] = V[rows] - bump(rows)
     flank &= np.isfinite(Vf)
-    _levels(level, Vf, flank & is_late, unknown)
+    _levels(level, Vf, flank & late[:, None], unknown)
     _course(course, Vf, flank, level, noise, np.isnan(course))
     return course, level
 
