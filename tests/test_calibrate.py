@@ -26,6 +26,7 @@ import yaml
 
 from robot.launch import load_launch
 from varskin.cli import main
+from varskin.design_fit import fit_design
 from varskin.localization.peakfit import Localizer
 from varskin.patch import config_dir
 from varskin.planning import UniformPlanner
@@ -105,6 +106,11 @@ def test_calibrate_runs_the_plan_stores_and_reports(full_run, capsys):
     # TX wire's sensors (beyond the probes' last column) 1-2 mm off within ~3 sigma; the
     # median error 0.37-0.56 mm in the last 4.
     assert rms < 1.5 and median_error_mm(final, truth) < 0.8
+    # The located sensors against the design, stored with the session: the simulated rig's
+    # registration is exact, so the layout lies as the design within the wires' build.
+    fit = fit_design(final, load_launch(launch).patch)
+    assert meta["design_fit"] == fit.as_dict() and fit.n_sensors == located
+    assert abs(fit.turn_deg) < 1.0 and np.hypot(*fit.shift_mm) < 2.0 and not fit.warnings()
     report = db.with_suffix("")
     for name in ("predictions.csv", "predictions.json", "point_log_maps.png", "predictions.png",
                  "uncertainty_vs_touches.png"):  # fmt: skip

@@ -347,6 +347,7 @@ def _check_plan_safe(launch: LaunchConfig, plan: dict) -> None:
 
 def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
     from robot.rig_time import estimate_plan_time
+    from varskin.design_fit import fit_design
     from varskin.report import write_report
     from varskin.session import rms_error_mm
 
@@ -370,9 +371,15 @@ def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
             f"error vs the simulated rig's hidden layout: RMS {rms:.3f} mm over {n} located sensors"
         )
     lines.append(f"located {located}/{len(result.predictions.estimates)} sensors")
+    fit = fit_design(result.predictions, launch.patch)
+    if fit is not None:
+        lines.append(fit.summary())
+        store.set_meta("design_fit", fit.as_dict())
     lines.append(f"session: {out_path}; report: {files.predictions_csv.parent}/")
     for line in lines:
         print(line)
+    for w in fit.warnings() if fit is not None else ():
+        print(f"varskin: warning: {w}", file=sys.stderr)
     store.set_meta("rig_time_estimate_s", est.total_s)
     # a resumed session adds this run's time to the earlier runs'
     store.set_meta("wall_s", float(store.meta().get("wall_s") or 0.0) + result.wall_s)

@@ -269,6 +269,8 @@ def run(args) -> int:
             write_plots(Path(args.plots), logs, predictions, sensors, params, outline=outline)
     if not args.quiet:
         print(prediction_table(predictions))
+        if patch is not None:
+            print_design_fit(predictions, patch)
         for note in (settling_note(predictions.params), unseen_note(predictions.params)):
             if note:
                 print(note)
@@ -282,6 +284,20 @@ def run(args) -> int:
             line += f"; {shape} response"
         print(line)
     return 0
+
+
+def print_design_fit(predictions, patch) -> None:
+    """The located sensors against the patch's design (``design_fit``): one line, and a
+    warning on stderr where the whole layout lies turned or shifted beyond what a
+    registration leaves."""
+    from varskin.design_fit import fit_design
+
+    fit = fit_design(predictions, patch)
+    if fit is None:
+        return
+    print(fit.summary())
+    for w in fit.warnings():
+        print(f"varskin: warning: {w}", file=sys.stderr)
 
 
 def write_plots(

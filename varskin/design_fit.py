@@ -1,0 +1,134 @@
+"""How the located sensors sit against their patch's design: shifted, turned, stretched.
+
+Why a module: bringing up a patch, a lab wants two answers besides the positions. Does the
+skin lie where the registration put it (a shift or turn of the whole layout)? And how far
+was each sensor built off its design, once that is taken out? The localizer's layout
+prior maps the design onto the fits per axis (an offset, and a scale with five or more
+wires), never turns it, and reports neither. This fits one similarity transform (shift,
+turn, stretch) from the design to the `ok` sensors and reports it. A turn or shift beyond
+what a registration leaves gets a warning: it means the registration is off, and the
+plan's touches sit off the patch by as much.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from varskin.patch import Patch
+from varskin.predictions import OK, R95_PER_AXIS_SD, Predictions
+
+# A turn beyond this is not what a registration leaves: the ArUco registration's worst on
+# noisy images is 0.62 degrees (docs/benchmarks.md, "Patch registration from ArUco
+# markers"), and the simulated wires' bends turn a fitted Patch B by 0.1 degrees (sd).
+TURN_WARN_DEG = 1.0
+# A shift of the whole layout beyond this: a wire is built about 0.6 mm off its design
+# (the simulator's default), so the mean of several is well under it.
+SHIFT_WARN_MM = 2.0
+# How far a sensor is built off its design beyond the similarity, at least (mm sd): the
+# layout prior's floor for the wires' scatter (peakfit's `wire_scatter_mm`).
+BUILD_SCATTER_FLOOR_MM = 0.25
+MIN_SENSORS = 3
+
+
+@dataclass(frozen=True)
+class DesignFit:
+    """The similarity from a patch's design to its located sensors (patch frame, mm)."""
+
+    n_sensors: int  # `ok` sensors it was fitted to
+    shift_mm: tuple[float, float]  # where the design's (weighted) centre landed, minus it
+    turn_deg: float  # anticlockwise
+    stretch: float  # relative: 0.01 is 1 % larger than the design
+    off_design_rms_mm: float  # each sensor off the transformed design, RMS
+    largest: tuple[str, float]  # the sensor furthest off it, and how far (mm)
+
+    def summary(self) -> str:
+        dx, dy = self.shift_mm
+        name, far = self.largest
+        return (
+            f"against the design ({self.n_sensors} located sensors): shifted "
+            f"({dx:+.2f}, {dy:+.2f}) mm, turned {self.turn_deg:+.2f} deg, stretched "
+            f"{100 * self.stretch:+.2f} %; then off it by {self.off_design_rms_mm:.2f} mm RMS "
+            f"(largest {name}, {far:.2f} mm)"
+        )
+
+    def warnings(self) -> list[str]:
+        out = []
+        if abs(self.turn_deg) > TURN_WARN_DEG:
+            out.append(
+                f"the located sensors lie turned {self.turn_deg:+.2f} deg against the patch's "
+                f"design (a registration leaves under {TURN_WARN_DEG:g}): check the "
+                "registration before the next session"
+            )
+        if float(np.hypot(*self.shift_mm)) > SHIFT_WARN_MM:
+            dx, dy = self.shift_mm
+            out.append(
+                f"the located sensors lie shifted ({dx:+.2f}, {dy:+.2f}) mm from the patch's "
+                f"design (more than {SHIFT_WARN_MM:g} mm): check the registration before "
+                "the next session"
+            )
+        return out
+
+    def as_dict(self) -> dict:
+        return {
+            "n_sensors": self.n_sensors,
+            "shift_mm": list(self.shift_mm),
+            "turn_deg": self.turn_deg,
+            "stretch": self.stretch,
+            "off_design_rms_mm": self.off_design_rms_mm,
+            "largest": {"sensor": self.largest[0], "mm": self.largest[1]},
+        }
+
+
+def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
+    """The design-to-sensors similarity over the `ok` sensors the patch names, or None with
+    fewer than MIN_SENSORS of them (or all at one design position).
+
+    Weighted least squares in complex form (z = x + iy): the located z ~ a + b * design z,
+    with b = (1 + stretch) e^(i turn). Each sensor weighs 1 / (sd^2 + s^2), with sd its
+    per-axis error (from ``sigma_mm``) and s its build
+    scatter about the transform, estimated from the residuals (empirical Bayes, at least
+    BUILD_SCATTER_FLOOR_MM), so a few well-measured sensors do not speak for the patch.
+    """
+    design = {s.name: complex(s.x_mm, s.y_mm) for s in patch.sensors}
+    names, z, d, var = [], [], [], []
+    for e in predictions:
+        if e.status != OK or e.sensor not in design or e.sigma_mm is None:
+            continue
+        if not (np.isfinite(e.x_mm) and np.isfinite(e.y_mm) and np.isfinite(e.sigma_mm)):
+            continue
+        names.append(e.sensor)
+        z.append(complex(e.x_mm, e.y_mm))
+        d.append(design[e.sensor])
+        var.append((2.0 * e.sigma_mm / R95_PER_AXIS_SD) ** 2)  # per axis
+    if len(names) < MIN_SENSORS:
+        return None
+    z, d, var = np.array(z), np.array(d), np.array(var)
+    build2 = BUILD_SCATTER_FLOOR_MM**2
+    for _ in range(20):
+        w = 1.0 / (var + build2)
+        dc = np.sum(w * d) / w.sum()
+        zc = np.sum(w * z) / w.sum()
+        spread = np.sum(w * np.abs(d - dc) ** 2)
+        if spread <= 0.0:
+            return None
+        b = np.sum(w * (z - zc) * np.conj(d - dc)) / spread
+        resid = z - (zc + b * (d - dc))
+        # Two coordinates per sensor, four parameters (shift, turn, stretch).
+        dof = max(2 * len(z) - 4, 1)
+        new = max(BUILD_SCATTER_FLOOR_MM**2, np.sum(np.abs(resid) ** 2) / dof - np.mean(var))
+        if abs(new - build2) <= 1e-9 * build2:
+            break
+        build2 = new
+    off = np.abs(resid)
+    worst = int(np.argmax(off))
+    shift = zc - dc
+    return DesignFit(
+        n_sensors=len(z),
+        shift_mm=(float(shift.real), float(shift.imag)),
+        turn_deg=float(np.degrees(np.angle(b))),
+        stretch=float(abs(b) - 1.0),
+        off_design_rms_mm=float(np.sqrt(np.mean(off**2))),
+        largest=(names[worst], float(off[worst])),
+    )
