@@ -113,7 +113,7 @@ def test_calibrate_runs_the_plan_stores_and_reports(full_run, capsys):
     assert abs(fit.turn_deg) < 1.0 and np.hypot(*fit.shift_mm) < 2.0 and not fit.warnings()
     report = db.with_suffix("")
     for name in ("predictions.csv", "predictions.json", "point_log_maps.png", "predictions.png",
-                 "uncertainty_vs_touches.png"):  # fmt: skip
+                 "off_design.png", "uncertainty_vs_touches.png"):  # fmt: skip
         assert (report / name).stat().st_size > 0, name
     assert meta["rig_time_estimate_s"] > meta["wall_s"]  # the scaled sim ran faster than a rig
 

@@ -77,6 +77,8 @@ def test_only_located_sensors_count_and_too_few_give_no_fit():
     xy[7] += (1.0, 0.0)
     fit = fit_design(placed(xy, statuses), PATCH_B)
     assert fit.largest[0] == PATCH_B.sensors[7].name and 0.8 < fit.largest[1] < 1.05
+    dx, dy = fit.off_design_mm[PATCH_B.sensors[7].name]
+    assert 0.8 < dx < 1.05 and abs(dy) < 0.05 and len(fit.off_design_mm) == 29
     assert abs(fit.turn_deg - 1.5) < 0.05
     few = ["ok", "ok"] + ["dead"] * 28
     assert fit_design(placed(xy, few), PATCH_B) is None
@@ -108,13 +110,20 @@ def test_localize_with_the_patch_prints_the_fit_and_warns_on_a_turn(tmp_path, ca
     )
     logs = tmp_path / "turned.csv"
     write_point_logs_csv(logs, session.point_logs())
-    assert main(["localize", str(logs), "--patch", "patch_b", "-o", str(tmp_path / "p.csv")]) == 0
+    plots = tmp_path / "plots"
+    args = ["localize", str(logs), "-o", str(tmp_path / "p.csv"), "--plots", str(plots)]
+    args += ["--plot-sensors", "S1"]  # one map: the others would take most of the test's time
+    assert main([*args, "--patch", "patch_b"]) == 0
     out, err = capsys.readouterr()
+    # The displacements from the design, magnified, beside the predictions.
+    assert (plots / "off_design.png").stat().st_size > 5000
     assert "against the design (" in out and "turned +" in out
     warning = [line for line in err.splitlines() if "turned" in line]
     assert len(warning) == 1 and warning[0].startswith("varskin: warning: the located sensors")
     assert "check the registration" in warning[0]
     # Without the patch there is no design to hold the sensors against.
-    assert main(["localize", str(logs), "-o", str(tmp_path / "q.csv")]) == 0
+    (plots / "off_design.png").unlink()
+    assert main(args) == 0
     out, err = capsys.readouterr()
     assert "against the design" not in out and "turned" not in err
+    assert not (plots / "off_design.png").exists() and (plots / "predictions.png").exists()

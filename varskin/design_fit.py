@@ -43,6 +43,8 @@ class DesignFit:
     stretch: float  # relative: 0.01 is 1 % larger than the design
     off_design_rms_mm: float  # each sensor off the transformed design, RMS
     largest: tuple[str, float]  # the sensor furthest off it, and how far (mm)
+    # Each fitted sensor's (dx, dy) mm off the transformed design: its wires' build.
+    off_design_mm: dict[str, tuple[float, float]]
 
     def summary(self) -> str:
         dx, dy = self.shift_mm
@@ -79,6 +81,7 @@ class DesignFit:
             "stretch": self.stretch,
             "off_design_rms_mm": self.off_design_rms_mm,
             "largest": {"sensor": self.largest[0], "mm": self.largest[1]},
+            "off_design_mm": {name: list(d) for name, d in self.off_design_mm.items()},
         }
 
 
@@ -132,4 +135,7 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
         stretch=float(abs(b) - 1.0),
         off_design_rms_mm=float(np.sqrt(np.mean(off**2))),
         largest=(names[worst], float(off[worst])),
+        off_design_mm={
+            n: (float(r.real), float(r.imag)) for n, r in zip(names, resid, strict=True)
+        },
     )

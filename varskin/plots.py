@@ -4,7 +4,9 @@
   and the thresholded peak with its prediction (the paper's three-step figure);
 * ``plot_point_log_maps``: every sensor's map as a tile of one mosaic, estimates marked;
 * ``plot_predictions``: every prediction versus the truth over the patch outline, with the
-  probe locations and, where a method gives one, the 1-sigma error circle.
+  probe locations and, where a method gives one, the 1-sigma error circle;
+* ``plot_off_design``: each located sensor's displacement from the patch's design, the
+  layout's shift, turn and stretch taken out (``varskin.design_fit``), magnified.
 
 Figures are drawn with matplotlib's object API on the Agg canvas, so nothing here touches
 the global pyplot state or needs a display; localizers never import this module.
@@ -192,6 +194,67 @@ def plot_predictions(
     ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
     ax.autoscale_view()
     return _save(fig, path)
+
+
+def plot_off_design(
+    predictions: Predictions,
+    off_design_mm: dict[str, tuple[float, float]],
+    path: str | Path,
+    outline_mm: tuple[float, float] | None = None,
+    title: str = "",
+) -> Path:
+    """Each located sensor's displacement from the patch's design (once the layout's
+    shift, turn and stretch are taken out: ``design_fit``), as arrows magnified to be seen,
+    each with its 2-sigma circle magnified alike: an arrow that leaves its circle is a
+    crossing built off its design; arrows that agree along a line are a displaced wire.
+    ``title`` is a second title line (``DesignFit.summary()``)."""
+    fig = Figure(figsize=(12, 3.2), layout="constrained")
+    ax = fig.subplots()
+    if outline_mm is not None:
+        ax.add_patch(
+            Rectangle((0, 0), *outline_mm, fill=False, lw=1.5, ec="black", label="patch outline")
+        )
+    est = {e.sensor: e for e in predictions if e.status == OK}
+    names = [n for n in off_design_mm if n in est]
+    at = np.array([[est[n].x_mm, est[n].y_mm] for n in names]).reshape(-1, 2)
+    d = np.array([off_design_mm[n] for n in names], float).reshape(-1, 2)
+    extent = float(np.ptp(at, axis=0).max()) if len(at) > 1 else 1.0
+    largest = float(np.hypot(*d.T).max()) if len(d) else 0.0
+    gain = _nice_gain(0.06 * extent / largest) if largest > 0 else 1.0
+    base = at - d  # where the shifted, turned and stretched design puts each sensor
+    ax.plot(base[:, 0], base[:, 1], "x", color="0.5", ms=4, label="design, fitted as a whole")
+    for (bx, by), (dx, dy), n in zip(base, d, names, strict=True):
+        ax.annotate(
+            "", (bx + gain * dx, by + gain * dy), (bx, by),
+            arrowprops={"arrowstyle": "->", "color": "tab:red", "lw": 0.9},
+        )  # fmt: skip
+        sigma = est[n].sigma_mm
+        if sigma is not None:
+            ax.add_patch(
+                Circle((bx + gain * dx, by + gain * dy), gain * 2 * sigma, fill=False,
+                       ec="tab:blue", lw=0.5)
+            )  # fmt: skip
+        ax.annotate(n, (bx, by), textcoords="offset points", xytext=(2, -8), fontsize=6)
+    ax.plot([], [], "-", color="tab:red", label=f"located - design, x{gain:g}")
+    ax.plot([], [], "o", mfc="none", mec="tab:blue", label=f"2 sigma, x{gain:g}")
+    head = "located sensors against the patch's design"
+    ax.set_title(f"{head}\n{title}" if title else head, fontsize=9)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
+    ax.autoscale_view()
+    return _save(fig, path)
+
+
+def _nice_gain(g: float) -> float:
+    """The largest of 1, 2, 5, 10, 20, 50, ... not above ``g`` (at least 1)."""
+    best = 1.0
+    for k in range(0, 6):
+        for m in (1.0, 2.0, 5.0):
+            if m * 10**k <= g:
+                best = m * 10**k
+    return best
 
 
 def plot_point_log_maps(

@@ -11,8 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
+from varskin.design_fit import fit_design
 from varskin.patch import Patch
-from varskin.plots import plot_point_log_maps, plot_predictions, plot_uncertainty_vs_touches
+from varskin.plots import (
+    plot_off_design,
+    plot_point_log_maps,
+    plot_predictions,
+    plot_uncertainty_vs_touches,
+)
 from varskin.predictions import OK, Predictions
 from varskin.session import rms_error_mm
 from varskin.store import SessionStore
@@ -74,6 +80,13 @@ def write_report(
             predictions, out / "predictions.png", logs.xy_mm, truth, outline_mm=outline
         ),
     ]
+    fit = fit_design(predictions, patch)
+    if fit is not None:
+        plots.append(
+            plot_off_design(
+                predictions, fit.off_design_mm, out / "off_design.png", outline, fit.summary()
+            )
+        )
     conv = convergence(store, truth_xy)
     if len(conv["n_logs"]):
         plots.append(

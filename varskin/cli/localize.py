@@ -266,7 +266,9 @@ def run(args) -> int:
             predictions.to_json(args.json)
         if args.plots:
             outline = (patch.length_mm, patch.width_mm) if patch else None
-            write_plots(Path(args.plots), logs, predictions, sensors, params, outline=outline)
+            write_plots(
+                Path(args.plots), logs, predictions, sensors, params, outline=outline, patch=patch
+            )
     if not args.quiet:
         print(prediction_table(predictions))
         if patch is not None:
@@ -301,9 +303,10 @@ def print_design_fit(predictions, patch) -> None:
 
 
 def write_plots(
-    folder: Path, logs, predictions, sensors, params, truth=None, outline=None
+    folder: Path, logs, predictions, sensors, params, truth=None, outline=None, patch=None
 ) -> list[Path]:
     from varskin import plots
+    from varskin.design_fit import fit_design
 
     # The maps show the paper's steps; use the paper parameters the user gave, else its defaults.
     map_params = {k: v for k, v in params.items() if k in ("eta", "ppcm", "area")}
@@ -311,6 +314,13 @@ def write_plots(
     out = [
         plots.plot_predictions(predictions, folder / "predictions.png", logs.xy_mm, truth, outline)
     ]
+    fit = fit_design(predictions, patch) if patch is not None else None
+    if fit is not None:
+        out.append(
+            plots.plot_off_design(
+                predictions, fit.off_design_mm, folder / "off_design.png", outline, fit.summary()
+            )
+        )
     for s in sensors:
         out.append(
             plots.plot_point_log_map(
