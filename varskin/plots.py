@@ -37,6 +37,16 @@ def _save(fig: Figure, path: str | Path) -> Path:
     return path
 
 
+def _save_patch_view(fig: Figure, ax, path: str | Path) -> Path:
+    """A view over the patch in mm, to scale, its legend beside it, saved."""
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
+    ax.autoscale_view()
+    return _save(fig, path)
+
+
 def plot_point_log_map(
     logs: PointLogs,
     sensor: str,
@@ -188,12 +198,7 @@ def plot_predictions(
         or f"{predictions.method}: predicted sensor positions"
         + (f" (not localized: {', '.join(failed)})" if failed else "")
     )
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
-    ax.autoscale_view()
-    return _save(fig, path)
+    return _save_patch_view(fig, ax, path)
 
 
 def plot_off_design(
@@ -239,12 +244,7 @@ def plot_off_design(
     ax.plot([], [], "o", mfc="none", mec="tab:blue", label=f"2 sigma, x{gain:g}")
     head = "located sensors against the patch's design"
     ax.set_title(f"{head}\n{title}" if title else head, fontsize=9)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
-    ax.autoscale_view()
-    return _save(fig, path)
+    return _save_patch_view(fig, ax, path)
 
 
 def _nice_gain(g: float) -> float:
