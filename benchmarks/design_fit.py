@@ -6,8 +6,9 @@ Each scene's layout is built off its design (the simulator's wire offsets and be
 the fit to the localized sensors is compared with the same fit to the hidden truth. Printed
 per row (Patch A or B, robot or finger, 20 x 5 cell centres, the patch given): the smallest,
 largest and 95th-percentile |turn|, the truth's own largest |turn|, the sd and largest of fitted
-minus true turn, the sd of fitted minus true stretch, the largest shift, and how many
-scenes the fit warned on. Run as ``python benchmarks/design_fit.py`` (1m29s on one
+minus true turn, the sd of fitted minus true stretch, the largest shift, the fitted turn
+less the scene's and the fitted shift in units of their first-order sds (their sd and
+largest), and how many scenes the fit warned on. Run as ``python benchmarks/design_fit.py`` (1m29s on one
 core); ``--seeds 0-39``, ``--turn 2`` and ``--stretch 0.02`` change the scenes.
 """
 
@@ -43,6 +44,7 @@ def as_located(patch, xy) -> Predictions:
 def row(name: str, probe: str, seeds, params: SceneParams) -> None:
     patch = builtin_patch(name)
     turn, true_turn, stretch, true_stretch, shift, warned = [], [], [], [], [], 0
+    z_turn, z_shift = [], []  # (fitted - scene's) turn and shift in their own sds
     for seed in seeds:
         session = simulate_session(patch, uniform_grid(patch, 20, 5), probe, seed, params)
         fit = fit_design(localize(session.point_logs(), patch=patch), patch)
@@ -52,6 +54,8 @@ def row(name: str, probe: str, seeds, params: SceneParams) -> None:
         stretch.append(fit.stretch)
         true_stretch.append(truth.stretch)
         shift.append(float(np.hypot(*fit.shift_mm)))
+        z_turn.append((fit.turn_deg - params.rotation_deg) / fit.turn_sd_deg)
+        z_shift.extend(np.asarray(fit.shift_mm) / np.asarray(fit.shift_sd_mm))
         warned += bool(fit.warnings())
     turn, true_turn = np.array(turn), np.array(true_turn)
     d_stretch = np.array(stretch) - np.array(true_stretch)
@@ -60,9 +64,15 @@ def row(name: str, probe: str, seeds, params: SceneParams) -> None:
         f"{np.quantile(np.abs(turn), 0.95):.2f} deg (truth's max {np.abs(true_turn).max():.2f}); "
         f"fitted - true turn sd {np.std(turn - true_turn):.2f}, max "
         f"{np.abs(turn - true_turn).max():.2f} deg; stretch sd {100 * np.std(d_stretch):.2f} %; "
-        f"shift max {max(shift):.2f} mm; warned on {warned} of {len(turn)}",
+        f"shift max {max(shift):.2f} mm; in their sds: turn {_spread(z_turn)}, shift "
+        f"{_spread(z_shift)}; warned on {warned} of {len(turn)}",
         flush=True,
     )
+
+
+def _spread(z) -> str:
+    z = np.asarray(z)
+    return f"sd {np.std(z):.2f}, max |z| {np.abs(z).max():.2f}"
 
 
 def main(argv=None) -> None:

@@ -11,7 +11,7 @@ import pytest
 from varskin.cli import main
 from varskin.design_fit import fit_design
 from varskin.localization import localize
-from varskin.patch import builtin_patch
+from varskin.patch import builtin_patch, patch_from_dict
 from varskin.pointlog_csv import write_point_logs_csv
 from varskin.predictions import Predictions, SensorEstimate
 from varskin.scene import SceneParams
@@ -20,13 +20,13 @@ from varskin.simulate import simulate_session, uniform_grid
 PATCH_B = builtin_patch("patch_b")
 
 
-def placed(xy, statuses=None, sigma=0.1) -> Predictions:
+def placed(xy, statuses=None, sigma=0.1, patch=PATCH_B) -> Predictions:
     statuses = statuses or ["ok"] * len(xy)
     return Predictions(
         "test",
         [
             SensorEstimate(s.name, float(x), float(y), sigma, 30.0, st)
-            for s, (x, y), st in zip(PATCH_B.sensors, xy, statuses, strict=True)
+            for s, (x, y), st in zip(patch.sensors, xy, statuses, strict=True)
         ],
         {},
     )
@@ -85,6 +85,24 @@ def test_only_located_sensors_count_and_too_few_give_no_fit():
     # Sensors the patch does not name are left out, as if not located.
     renamed = Predictions("test", [replace(e, sensor=f"X{e.sensor}") for e in placed(xy)], {})
     assert fit_design(renamed, PATCH_B) is None
+
+
+def test_a_turn_is_warned_about_only_where_the_layout_can_show_it():
+    """The same 1.5-degree turn and the same 0.4 mm build jitter of each crossing: on Patch
+    B (152 mm long) the turn stands out; on a 20 mm patch of 3 x 3 crossings the jitter
+    alone turns the layout by about as much, so no warning (its sd says why)."""
+    tiny = patch_from_dict(
+        {"name": "tiny", "size_mm": [20, 20], "tx_x_mm": [4, 10, 16], "rx_y_mm": [4, 10, 16]},
+        "tiny",
+    )
+    rng = np.random.default_rng(3)
+    for patch, warned in ((PATCH_B, True), (tiny, False)):
+        design = patch.design_xy
+        xy = moved(design, (0.0, 0.0), 1.5, 0.0) + rng.normal(0.0, 0.4, design.shape)
+        fit = fit_design(placed(xy, patch=patch), patch)
+        assert abs(fit.turn_deg) > 1.0  # beyond TURN_WARN_DEG either way
+        assert any("turned" in w for w in fit.warnings()) == warned
+        assert (fit.turn_sd_deg < 0.3) == warned  # about 0.1 on Patch B, degrees on tiny
 
 
 def test_a_localized_turned_scene_shows_its_turn_and_an_unturned_one_none():

@@ -27,6 +27,10 @@ TURN_WARN_DEG = 1.0
 # A shift of the whole layout beyond this: a wire is built about 0.6 mm off its design
 # (the simulator's default), and on those scenes the fitted shift stayed within 1.05 mm.
 SHIFT_WARN_MM = 2.0
+# ... and each only where it also stands this many of its sds clear of nothing: on a
+# patch a few wire pitches across, the wires' build offsets alone turn the layout by
+# degrees (20 mm, 3 x 3 crossings: sd 1.6 degrees).
+WARN_SDS = 3.0
 # How far a sensor is built off its design beyond the similarity, at least (mm sd): the
 # layout prior's floor for the wires' scatter (peakfit's `wire_scatter_mm`).
 BUILD_SCATTER_FLOOR_MM = 0.25
@@ -41,6 +45,13 @@ class DesignFit:
     shift_mm: tuple[float, float]  # where the design's (weighted) centre landed, minus it
     turn_deg: float  # anticlockwise
     stretch: float  # relative: 0.01 is 1 % larger than the design
+    # sds of the shift (x, y) and of the turn: a wire's crossings are built off together,
+    # so each is the larger of the first-order sd (every sensor independent) and the
+    # sandwich sd that takes each wire's residuals as one. On Patch A and B the fitted
+    # turns scatter 0.9-1.7x their sds and the shifts 1.5-2.4x (benchmarks/design_fit.py):
+    # a family of 2-3 RX wires gives the sandwich little to go on.
+    shift_sd_mm: tuple[float, float]
+    turn_sd_deg: float
     off_design_rms_mm: float  # each sensor off the transformed design, RMS
     largest: tuple[str, float]  # the sensor furthest off it, and how far (mm)
     # Each fitted sensor's (dx, dy) mm off the transformed design: its wires' build.
@@ -48,23 +59,26 @@ class DesignFit:
 
     def summary(self) -> str:
         dx, dy = self.shift_mm
+        sx, sy = self.shift_sd_mm
         name, far = self.largest
         return (
             f"against the design ({self.n_sensors} located sensors): shifted "
-            f"({dx:+.2f}, {dy:+.2f}) mm, turned {self.turn_deg:+.2f} deg, stretched "
+            f"({dx:+.2f}, {dy:+.2f}) mm (sd {sx:.2f}, {sy:.2f}), turned "
+            f"{self.turn_deg:+.2f} deg (sd {self.turn_sd_deg:.2f}), stretched "
             f"{100 * self.stretch:+.2f} %; then off it by {self.off_design_rms_mm:.2f} mm RMS "
             f"(largest {name}, {far:.2f} mm)"
         )
 
     def warnings(self) -> list[str]:
         out = []
-        if abs(self.turn_deg) > TURN_WARN_DEG:
+        if abs(self.turn_deg) > max(TURN_WARN_DEG, WARN_SDS * self.turn_sd_deg):
             out.append(
                 f"the located sensors lie turned {self.turn_deg:+.2f} deg against the patch's "
                 f"design (a registration leaves under {TURN_WARN_DEG:g} deg): check the "
                 "registration before the next session"
             )
-        if float(np.hypot(*self.shift_mm)) > SHIFT_WARN_MM:
+        z = np.abs(self.shift_mm) / np.maximum(self.shift_sd_mm, 1e-12)
+        if float(np.hypot(*self.shift_mm)) > SHIFT_WARN_MM and z.max() > WARN_SDS:
             dx, dy = self.shift_mm
             out.append(
                 f"the located sensors lie shifted ({dx:+.2f}, {dy:+.2f}) mm from the patch's "
@@ -79,6 +93,8 @@ class DesignFit:
             "shift_mm": list(self.shift_mm),
             "turn_deg": self.turn_deg,
             "stretch": self.stretch,
+            "shift_sd_mm": list(self.shift_sd_mm),
+            "turn_sd_deg": self.turn_sd_deg,
             "off_design_rms_mm": self.off_design_rms_mm,
             "largest": {"sensor": self.largest[0], "mm": self.largest[1]},
             "off_design_mm": {name: list(d) for name, d in self.off_design_mm.items()},
@@ -96,6 +112,7 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
     BUILD_SCATTER_FLOOR_MM), so a few well-measured sensors do not speak for the patch.
     """
     design = {s.name: complex(s.x_mm, s.y_mm) for s in patch.sensors}
+    wires = {s.name: (s.tx, s.rx) for s in patch.sensors}
     names, z, d, var = [], [], [], []
     for e in predictions:
         if e.status != OK or e.sensor not in design or e.sigma_mm is None:
@@ -128,14 +145,51 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
     off = np.abs(resid)
     worst = int(np.argmax(off))
     shift = zc - dc
+    cov = _sandwich(d - dc, resid, w, [wires[n] for n in names])
+    first = np.array([1.0 / w.sum(), 1.0 / w.sum(), 1.0 / spread, 1.0 / spread])
+    sd = np.sqrt(np.maximum(first, np.diag(cov)))
     return DesignFit(
         n_sensors=len(z),
         shift_mm=(float(shift.real), float(shift.imag)),
         turn_deg=float(np.degrees(np.angle(b))),
         stretch=float(abs(b) - 1.0),
+        shift_sd_mm=(float(sd[0]), float(sd[1])),
+        turn_sd_deg=float(np.degrees(sd[3] / abs(b))),
         off_design_rms_mm=float(np.sqrt(np.mean(off**2))),
         largest=(names[worst], float(off[worst])),
         off_design_mm={
             n: (float(r.real), float(r.imag)) for n, r in zip(names, resid, strict=True)
         },
     )
+
+
+def _sandwich(dd: np.ndarray, resid: np.ndarray, w: np.ndarray, wires: list) -> np.ndarray:
+    """Covariance (4, 4) of (centre x, centre y, Re b, Im b) with each TX wire's x
+    residuals and each RX wire's y residuals summed as one (the crossings of a wire are
+    built off together), scaled by G / (G - 1) for the G wires.
+
+    The real form of the fit: x - xc = Re(b) Re(dd) - Im(b) Im(dd), y - yc = Re(b) Im(dd)
+    + Im(b) Re(dd), each row weighed by w; ``dd`` the centred design, ``resid`` the fit's.
+    A first-order sd takes every crossing as independent: on Patch A and B it claimed a
+    third of the shift's spread (benchmarks/design_fit.py).
+    """
+    one, zero = np.ones_like(w), np.zeros_like(w)
+    gx = np.stack([one, zero, dd.real, -dd.imag], axis=1)  # (N, 4)
+    gy = np.stack([zero, one, dd.imag, dd.real], axis=1)
+    A = (
+        w[:, None, None] * (gx[:, :, None] * gx[:, None, :] + gy[:, :, None] * gy[:, None, :])
+    ).sum(axis=0)
+    sx = w[:, None] * gx * resid.real[:, None]  # each row's score
+    sy = w[:, None] * gy * resid.imag[:, None]
+    clusters: dict = {}
+    for i, (tx, rx) in enumerate(wires):
+        clusters.setdefault(("tx", tx if tx >= 0 else -1 - i), []).append(sx[i])
+        clusters.setdefault(("rx", rx if rx >= 0 else -1 - i), []).append(sy[i])
+    scores = np.array([np.sum(rows, axis=0) for rows in clusters.values()])  # (G, 4)
+    G = len(scores)
+    B = scores.T @ scores * (G / max(G - 1, 1))
+    try:
+        inv = np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        inv = np.linalg.pinv(A)
+    return inv @ B @ inv
