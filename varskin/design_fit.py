@@ -6,8 +6,8 @@ was each sensor built off its design, once that is taken out? The localizer's la
 prior maps the design onto the fits per axis (an offset, and a scale with five or more
 wires), never turns it, and reports neither. This fits one similarity transform (shift,
 turn, stretch) from the design to the `ok` sensors and reports it. A turn or shift beyond
-what a registration leaves gets a warning: it means the registration is off, and the
-plan's touches sit off the patch by as much.
+what a registration leaves, and beyond what the sensors' own build could make of it, gets
+a warning: the registration is off, and the plan's touches sit off the patch by as much.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ TURN_WARN_DEG = 1.0
 # A shift of the whole layout beyond this: a wire is built about 0.6 mm off its design
 # (the simulator's default), and on those scenes the fitted shift stayed within 1.05 mm.
 SHIFT_WARN_MM = 2.0
-# ... and each only where it also stands this many of its sds clear of nothing: on a
-# patch a few wire pitches across, the wires' build offsets alone turn the layout by
-# degrees (20 mm, 3 x 3 crossings: sd 1.6 degrees).
+# ... and each only where it is also more than this many of its sds: on a patch a few
+# wire pitches across, the crossings' build alone turns the layout by degrees (20 mm, 3 x
+# 3 crossings: sd 1.6 degrees).
 WARN_SDS = 3.0
 # How far a sensor is built off its design beyond the similarity, at least (mm sd): the
 # layout prior's floor for the wires' scatter (peakfit's `wire_scatter_mm`).
