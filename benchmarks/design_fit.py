@@ -4,12 +4,13 @@ the warnings' thresholds) and how well they follow a turned, stretched one.
 
 Each scene's layout is built off its design (the simulator's wire offsets and bends), so
 the fit to the localized sensors is compared with the same fit to the hidden truth. Printed
-per row (Patch A or B, robot or finger, 20 x 5 cell centres, the patch given): the smallest,
-largest and 95th-percentile |turn|, the truth's own largest |turn|, the sd and largest of fitted
-minus true turn, the sd of fitted minus true stretch, the largest shift, the fitted turn
-less the scene's and the fitted shift in units of their first-order sds (their sd and
-largest), and how many scenes the fit warned on. Run as ``python benchmarks/design_fit.py`` (1m29s on one
-core); ``--seeds 0-39``, ``--turn 2`` and ``--stretch 0.02`` change the scenes.
+per row (Patch A or B, robot or finger, 20 x 5 cell centres, the patch given): the
+smallest, largest and 95th-percentile |turn|, the truth's own largest |turn|, the sd and
+largest of fitted minus true turn, the sd of fitted minus true stretch, the largest shift,
+the fitted turn less the scene's and the fitted shift in units of the sds the fit gives
+them (their sd and largest), and how many scenes the fit warned on. Run as ``python
+benchmarks/design_fit.py`` (1m29s on one core); ``--seeds 0-39``, ``--turn 2`` and
+``--stretch 0.02`` change the scenes.
 """
 
 import _one_core  # noqa: F401  (first: pins BLAS to one thread before numpy loads)

@@ -48,7 +48,7 @@ class DesignFit:
     # sds of the shift (x, y) and of the turn: a wire's crossings are built off together,
     # so each is the larger of the first-order sd (every sensor independent) and the
     # sandwich sd that takes each wire's residuals as one. On Patch A and B the fitted
-    # turns scatter 0.9-1.7x their sds and the shifts 1.5-2.4x (benchmarks/design_fit.py):
+    # turns scatter 0.7-1.7x their sds and the shifts 1.5-2.8x (benchmarks/design_fit.py):
     # a family of 2-3 RX wires gives the sandwich little to go on.
     shift_sd_mm: tuple[float, float]
     turn_sd_deg: float
