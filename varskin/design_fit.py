@@ -52,10 +52,21 @@ class DesignFit:
     # a family of 2-3 RX wires gives the sandwich little to go on.
     shift_sd_mm: tuple[float, float]
     turn_sd_deg: float
-    off_design_rms_mm: float  # each sensor off the transformed design, RMS
-    largest: tuple[str, float]  # the sensor furthest off it, and how far (mm)
     # Each fitted sensor's (dx, dy) mm off the transformed design: its wires' build.
     off_design_mm: dict[str, tuple[float, float]]
+
+    @property
+    def off_design_rms_mm(self) -> float:
+        """The sensors' distance from the transformed design, RMS (mm)."""
+        return float(
+            np.sqrt(np.mean([dx * dx + dy * dy for dx, dy in self.off_design_mm.values()]))
+        )
+
+    @property
+    def largest(self) -> tuple[str, float]:
+        """The sensor furthest off the transformed design, and how far (mm)."""
+        name = max(self.off_design_mm, key=lambda n: np.hypot(*self.off_design_mm[n]))
+        return name, float(np.hypot(*self.off_design_mm[name]))
 
     def summary(self) -> str:
         dx, dy = self.shift_mm
@@ -127,6 +138,8 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
         return None
     z, d, var = np.array(z), np.array(d), np.array(var)
     build2 = BUILD_SCATTER_FLOOR_MM**2
+    # Two coordinates per sensor, four parameters (shift, turn, stretch).
+    dof = max(2 * len(z) - 4, 1)
     for _ in range(20):
         w = 1.0 / (var + build2)
         dc = np.sum(w * d) / w.sum()
@@ -136,14 +149,10 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
             return None
         b = np.sum(w * (z - zc) * np.conj(d - dc)) / spread
         resid = z - (zc + b * (d - dc))
-        # Two coordinates per sensor, four parameters (shift, turn, stretch).
-        dof = max(2 * len(z) - 4, 1)
         new = max(BUILD_SCATTER_FLOOR_MM**2, np.sum(np.abs(resid) ** 2) / dof - np.mean(var))
         if abs(new - build2) <= 1e-9 * build2:
             break
         build2 = new
-    off = np.abs(resid)
-    worst = int(np.argmax(off))
     shift = zc - dc
     cov = _sandwich(d - dc, resid, w, [wires[n] for n in names])
     first = np.array([1.0 / w.sum(), 1.0 / w.sum(), 1.0 / spread, 1.0 / spread])
@@ -155,8 +164,6 @@ def fit_design(predictions: Predictions, patch: Patch) -> DesignFit | None:
         stretch=float(abs(b) - 1.0),
         shift_sd_mm=(float(sd[0]), float(sd[1])),
         turn_sd_deg=float(np.degrees(sd[3] / abs(b))),
-        off_design_rms_mm=float(np.sqrt(np.mean(off**2))),
-        largest=(names[worst], float(off[worst])),
         off_design_mm={
             n: (float(r.real), float(r.imag)) for n, r in zip(names, resid, strict=True)
         },

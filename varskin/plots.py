@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -27,6 +28,9 @@ from scipy.spatial import QhullError
 from varskin.localization import paper
 from varskin.pointlogs import PointLogs, touch_spacing_mm
 from varskin.predictions import OK, Predictions
+
+if TYPE_CHECKING:
+    from varskin.design_fit import DesignFit
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
@@ -203,16 +207,15 @@ def plot_predictions(
 
 def plot_off_design(
     predictions: Predictions,
-    off_design_mm: dict[str, tuple[float, float]],
+    fit: DesignFit,
     path: str | Path,
     outline_mm: tuple[float, float] | None = None,
-    title: str = "",
 ) -> Path:
     """Each located sensor's displacement from the patch's design (once the layout's
     shift, turn and stretch are taken out: ``design_fit``), as arrows magnified to be seen,
     each with its 2-sigma circle magnified alike: an arrow that leaves its circle is a
     crossing built off its design; arrows that agree along a line are a displaced wire.
-    ``title`` is a second title line (``DesignFit.summary()``)."""
+    The fit's summary is the title's second line."""
     fig = Figure(figsize=(12, 3.2), layout="constrained")
     ax = fig.subplots()
     if outline_mm is not None:
@@ -220,6 +223,7 @@ def plot_off_design(
             Rectangle((0, 0), *outline_mm, fill=False, lw=1.5, ec="black", label="patch outline")
         )
     est = {e.sensor: e for e in predictions if e.status == OK}
+    off_design_mm = fit.off_design_mm
     names = [n for n in off_design_mm if n in est]
     at = np.array([[est[n].x_mm, est[n].y_mm] for n in names]).reshape(-1, 2)
     d = np.array([off_design_mm[n] for n in names], float).reshape(-1, 2)
@@ -243,7 +247,7 @@ def plot_off_design(
     ax.plot([], [], "-", color="tab:red", label=f"located - design, x{gain:g}")
     ax.plot([], [], "o", mfc="none", mec="tab:blue", label=f"2 sigma, x{gain:g}")
     head = "located sensors against the patch's design"
-    ax.set_title(f"{head}\n{title}" if title else head, fontsize=9)
+    ax.set_title(f"{head}\n{fit.summary()}", fontsize=9)
     return _save_patch_view(fig, ax, path)
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from varskin.design_fit import fit_design
+from varskin.design_fit import DesignFit, fit_design
 from varskin.patch import Patch
 from varskin.plots import (
     plot_off_design,
@@ -29,6 +29,7 @@ class ReportFiles:
     predictions_csv: Path
     predictions_json: Path
     plots: tuple[Path, ...]
+    design_fit: DesignFit | None  # the located sensors against the design (None: too few)
 
 
 def convergence(store: SessionStore, truth_xy: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -82,11 +83,7 @@ def write_report(
     ]
     fit = fit_design(predictions, patch)
     if fit is not None:
-        plots.append(
-            plot_off_design(
-                predictions, fit.off_design_mm, out / "off_design.png", outline, fit.summary()
-            )
-        )
+        plots.append(plot_off_design(predictions, fit, out / "off_design.png", outline))
     conv = convergence(store, truth_xy)
     if len(conv["n_logs"]):
         plots.append(
@@ -100,4 +97,4 @@ def write_report(
                 conv.get("rms_mm"),
             )
         )
-    return ReportFiles(csv_path, json_path, tuple(plots))
+    return ReportFiles(csv_path, json_path, tuple(plots), fit)

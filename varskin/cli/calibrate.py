@@ -347,7 +347,6 @@ def _check_plan_safe(launch: LaunchConfig, plan: dict) -> None:
 
 def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
     from robot.rig_time import estimate_plan_time
-    from varskin.design_fit import fit_design
     from varskin.report import write_report
     from varskin.session import rms_error_mm
 
@@ -371,7 +370,7 @@ def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
             f"error vs the simulated rig's hidden layout: RMS {rms:.3f} mm over {n} located sensors"
         )
     lines.append(f"located {located}/{len(result.predictions.estimates)} sensors")
-    fit = fit_design(result.predictions, launch.patch)
+    fit = files.design_fit
     if fit is not None:
         lines.append(fit.summary())
         store.set_meta("design_fit", fit.as_dict())

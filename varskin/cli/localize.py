@@ -253,6 +253,11 @@ def run(args) -> int:
             )
         method_kwargs["patch"] = patch
     predictions = localize(logs, method=args.method, **method_kwargs)
+    design_fit = None
+    if patch is not None:
+        from varskin.design_fit import fit_design
+
+        design_fit = fit_design(predictions, patch)
     sensors = list(logs.sensors)
     if args.plot_sensors:
         sensors = [s.strip() for s in args.plot_sensors.split(",") if s.strip()]
@@ -267,12 +272,13 @@ def run(args) -> int:
         if args.plots:
             outline = (patch.length_mm, patch.width_mm) if patch else None
             write_plots(
-                Path(args.plots), logs, predictions, sensors, params, outline=outline, patch=patch
-            )
+                Path(args.plots), logs, predictions, sensors, params, outline=outline,
+                design_fit=design_fit,
+            )  # fmt: skip
     if not args.quiet:
         print(prediction_table(predictions))
-        if patch is not None:
-            print_design_fit(predictions, patch)
+        if design_fit is not None:
+            print_design_fit(design_fit)
         for note in (settling_note(predictions.params), unseen_note(predictions.params)):
             if note:
                 print(note)
@@ -288,25 +294,19 @@ def run(args) -> int:
     return 0
 
 
-def print_design_fit(predictions, patch) -> None:
-    """The located sensors against the patch's design (``design_fit``): one line, and a
+def print_design_fit(fit) -> None:
+    """The located sensors against the patch's design (a ``DesignFit``): one line, and a
     warning on stderr where the whole layout lies turned or shifted beyond what a
     registration leaves."""
-    from varskin.design_fit import fit_design
-
-    fit = fit_design(predictions, patch)
-    if fit is None:
-        return
     print(fit.summary())
     for w in fit.warnings():
         print(f"varskin: warning: {w}", file=sys.stderr)
 
 
 def write_plots(
-    folder: Path, logs, predictions, sensors, params, truth=None, outline=None, patch=None
+    folder: Path, logs, predictions, sensors, params, truth=None, outline=None, design_fit=None
 ) -> list[Path]:
     from varskin import plots
-    from varskin.design_fit import fit_design
 
     # The maps show the paper's steps; use the paper parameters the user gave, else its defaults.
     map_params = {k: v for k, v in params.items() if k in ("eta", "ppcm", "area")}
@@ -314,12 +314,9 @@ def write_plots(
     out = [
         plots.plot_predictions(predictions, folder / "predictions.png", logs.xy_mm, truth, outline)
     ]
-    fit = fit_design(predictions, patch) if patch is not None else None
-    if fit is not None:
+    if design_fit is not None:
         out.append(
-            plots.plot_off_design(
-                predictions, fit.off_design_mm, folder / "off_design.png", outline, fit.summary()
-            )
+            plots.plot_off_design(predictions, design_fit, folder / "off_design.png", outline)
         )
     for s in sensors:
         out.append(
