@@ -67,12 +67,14 @@ class PlanConfig:
     mode: str = "uniform"  # "uniform" (the nx x ny grid) or "adaptive"
     budget: int = 100  # adaptive: most touches in all
     target_sigma_mm: float | None = None  # adaptive: stop when every sigma is below (None: default)
+    order: str = "auto"  # uniform: "sweep", "shuffled" or "auto" (varskin.planning.touch_order)
 
     def points_mm(self, patch: Patch) -> np.ndarray:
-        """(nx*ny, 2) uniform grid in the patch frame, serpentine to keep travel short."""
-        from varskin.planning import uniform_points
+        """(nx*ny, 2) uniform grid in the patch frame, in the order the plan touches it."""
+        from varskin.planning import in_order, touch_order, uniform_points
 
-        return uniform_points(patch, self.nx, self.ny, self.margin_mm)
+        points = uniform_points(patch, self.nx, self.ny, self.margin_mm)
+        return in_order(points, touch_order(patch, self.order))
 
 
 @dataclass(frozen=True)
@@ -367,7 +369,7 @@ def _touch(c: _Checker, value: object) -> TouchSpec:
 
 def _plan(c: _Checker, value: object, patch: Patch) -> PlanConfig:
     m = c.mapping(value, "plan")
-    c.known(m, {"grid", "margin_mm", "mode", "budget", "target_sigma_mm"}, "plan.")
+    c.known(m, {"grid", "margin_mm", "mode", "budget", "target_sigma_mm", "order"}, "plan.")
     c.require(m, "grid", "plan.")
     grid = m["grid"]
     if isinstance(grid, str) and "x" in grid:
@@ -390,7 +392,12 @@ def _plan(c: _Checker, value: object, patch: Patch) -> PlanConfig:
     target = m.get("target_sigma_mm")
     if target is not None:
         target = c.number(target, "plan.target_sigma_mm", 0.0, strict=True)
-    return PlanConfig(nx, ny, margin, mode, budget, target)
+    from varskin.planning import ORDERS
+
+    order = m.get("order", "auto")
+    if order not in ORDERS:
+        raise c.err("plan.order", f"is {order!r}, not {', '.join(ORDERS)}")
+    return PlanConfig(nx, ny, margin, mode, budget, target, order)
 
 
 def _sim(c: _Checker, value: object) -> SimConfig:

@@ -18,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +27,11 @@ import yaml
 
 from robot.launch import load_launch
 from varskin.cli import main
+from varskin.cli.calibrate import make_planner
 from varskin.design_fit import fit_design
 from varskin.localization.peakfit import Localizer
-from varskin.patch import config_dir
-from varskin.planning import UniformPlanner
+from varskin.patch import config_dir, patch_from_dict
+from varskin.planning import UniformPlanner, touch_order, uniform_points
 from varskin.pointlog_csv import read_point_logs
 from varskin.rig import open_rig
 from varskin.session import CalibrationSession, SessionEvent, SessionSettings, rms_error_mm
@@ -88,6 +90,8 @@ def test_calibrate_runs_the_plan_stores_and_reports(full_run, capsys):
     assert meta["status"] == "complete"
     assert [o.plan_index for o in outcomes] == list(range(N_TOUCHES))
     assert len(logs) == N_TOUCHES and all(o.ok for o in outcomes)
+    # Patch B is longer than SHUFFLE_UP_TO_MM: the grid is swept
+    assert meta["plan"]["order"] == "sweep"
     # the logs sit where the plan put them, and every touch has a real response
     plan = UniformPlanner(load_launch(launch).patch, *GRID, 3.0).points()
     np.testing.assert_array_equal(logs.xy_mm, plan)
@@ -417,6 +421,10 @@ def test_resume_refuses_a_changed_launch_file(full_run, tmp_path, capsys):
             "its sensors are not its patch's",
         ),
         ("UPDATE point_logs SET t_s = 1e200 WHERE plan_index = 5", "point log 5: t_s"),
+        (
+            "UPDATE meta SET value = json_set(value, '$.order', 'zigzag') WHERE key = 'plan'",
+            "damaged session file (its plan is",
+        ),
     ],
 )
 def test_resume_refuses_a_damaged_file_before_anything_starts(
@@ -437,6 +445,53 @@ def test_resume_refuses_a_damaged_file_before_anything_starts(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(copy) in err[0] and words in err[0], err
     assert started == [] and copy.read_bytes() == before
+
+
+def test_a_uniform_plan_keeps_the_order_its_session_stored(tmp_path):
+    """A small patch's plan is shuffled (``plan.order`` auto), and the order is stored with
+    the plan, so a resumed session touches as it began; a session stored before plans had
+    an order was swept, and resumes swept."""
+    launch = load_launch(write_launch(tmp_path / "sim.yaml"))
+    small = replace(
+        launch,
+        patch=patch_from_dict(
+            {"name": "small", "size_mm": [48, 20], "tx_x_mm": [6, 24, 42], "rx_y_mm": [5, 15]},
+            "<small>",
+        ),
+    )
+
+    def touched(settings: dict) -> np.ndarray:
+        return np.array([(t.x_mm, t.y_mm) for t in make_planner(small, settings)])
+
+    stored = {"planner": "uniform", "budget": 100, "target_sigma_mm": None}
+    swept = uniform_points(small.patch, *GRID, 3.0)
+    np.testing.assert_array_equal(touched(stored), swept)
+    shuffled = touched({**stored, "order": touch_order(small.patch, small.plan.order)})
+    assert small.plan.order == "auto" and not np.array_equal(shuffled, swept)
+    np.testing.assert_array_equal(shuffled, small.plan.points_mm(small.patch))
+
+
+def test_a_session_stored_before_plans_had_an_order_resumes_swept(full_run, tmp_path, capsys):
+    launch, db = full_run
+    old = tmp_path / "old.db"
+    shutil.copy(db, old)
+    cut = N_TOUCHES - 3
+    with sqlite3.connect(old) as c:
+        for table in ("outcomes", "point_logs", "attempts"):
+            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
+        c.execute("DELETE FROM estimates WHERE n_logs > ?", (cut,))
+        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
+        c.execute("UPDATE meta SET value = json_remove(value, '$.order') WHERE key = 'plan'")
+    capsys.readouterr()
+    assert main(["calibrate", "--resume", str(old)]) == 0
+    err = capsys.readouterr().err
+    assert "planner uniform (sweep order)" in err and f"resumed after {cut} plan touches" in err
+    with SessionStore.open(old) as store:
+        assert "order" not in store.meta()["plan"]
+        xy = store.point_logs().xy_mm
+    np.testing.assert_array_equal(
+        xy, UniformPlanner(load_launch(launch).patch, *GRID, 3.0).points()
+    )
 
 
 def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys, monkeypatch):

@@ -106,6 +106,7 @@ CASES = [
     ("plan.grid", "twentyxfive", "'plan.grid' is 'twentyxfive', not NXxNY"),
     ("plan.grid", [0, 5], "'plan.grid[0]' is 0, not an integer >= 1"),
     ("plan.margin_mm", 13, "'plan.margin_mm' (13 mm) leaves no room"),
+    ("plan.order", "zigzag", "'plan.order' is 'zigzag', not auto, sweep, shuffled"),
     ("registration.method", "laser", "'registration.method' is 'laser', not one of"),
     (
         "registration.frame.origin_m",

@@ -12,6 +12,7 @@ import pytest
 
 from robot.launch import PlanConfig
 from varskin.localization.peakfit import Localizer
+from varskin.patch import patch_from_dict
 from varskin.planning import (
     ADAPTIVE,
     BUDGET,
@@ -24,6 +25,7 @@ from varskin.planning import (
     PlannedTouch,
     TouchOutcome,
     UniformPlanner,
+    touch_order,
     uniform_points,
 )
 from varskin.predictions import OK, Predictions, SensorEstimate
@@ -97,6 +99,37 @@ def test_uniform_points_are_the_launch_plans_grid(patch_b, patch_a, grid):
     for patch in (patch_a, patch_b):
         ours = uniform_points(patch, nx, ny, margin)
         assert np.array_equal(ours, PlanConfig(nx, ny, margin).points_mm(patch))
+
+
+def test_a_shuffled_plan_is_one_fixed_order_and_auto_shuffles_only_small_patches(patch_b):
+    small = patch_from_dict(
+        {"name": "small", "size_mm": [50, 20], "tx_x_mm": [5, 25, 45], "rx_y_mm": [5, 15]},
+        "<small>",
+    )
+    wider = patch_from_dict(
+        {"name": "wider", "size_mm": [50.5, 20], "tx_x_mm": [5, 25, 45], "rx_y_mm": [5, 15]},
+        "<wider>",
+    )
+    assert touch_order(small) == "shuffled" and touch_order(wider) == "sweep"
+    assert touch_order(patch_b) == "sweep" and touch_order(patch_b, "shuffled") == "shuffled"
+    assert touch_order(small, "sweep") == "sweep"
+    with pytest.raises(ValueError, match="zigzag"):
+        touch_order(small, "zigzag")
+    grid = uniform_points(small, 10, 4)
+    first = UniformPlanner(small, 10, 4, order="shuffled").points()
+    # Every grid point once, not in the sweep's order, and the same order every time (a
+    # resumed session rebuilds its plan).
+    assert sorted(map(tuple, first)) == sorted(map(tuple, grid))
+    assert not np.array_equal(first, grid)
+    assert np.array_equal(first, UniformPlanner(small, 10, 4, order="shuffled").points())
+    assert np.array_equal(UniformPlanner(small, 10, 4).points(), grid)
+    # The launch's plan touches in the order it resolves to.
+    assert np.array_equal(PlanConfig(10, 4, 3.0).points_mm(small), first)
+    assert np.array_equal(PlanConfig(10, 4, 3.0, order="sweep").points_mm(small), grid)
+    # A sweep moves one grid step at a time; the shuffle spreads the first touches over
+    # the patch, so the offsets' early settling does not fall on one end of it.
+    assert np.ptp(first[:10, 0]) > 0.5 * np.ptp(grid[:, 0])
+    assert np.ptp(grid[:10, 0]) < 0.25 * np.ptp(grid[:, 0])
 
 
 def test_uniform_points_reject_impossible_grids(patch_b):

@@ -73,13 +73,50 @@ def _check_box(patch: Patch, margin_mm: float) -> None:
         raise ValueError(f"margin_mm ({margin_mm:g} mm) leaves no room on patch {patch.name!r}")
 
 
+# The uniform plan's touch orders. "sweep": serpentine, the shortest travel. "shuffled": one
+# fixed random order. "auto": shuffled on a patch whose longer side is at most
+# SHUFFLE_UP_TO_MM, else sweep. The board's offsets settle after the baseline, and a sweep
+# makes time run along x: on a patch so small that every touch lies in every sensor's fit
+# window, that settling reads as position. On the 20 mm patch with the robot (calibrate's
+# grid, seeds 0-19, the patch given) the shuffle took the median scene RMS from 0.422 to
+# 0.234 mm and 2-sigma coverage from 0.712 to 0.899; on the 40 and 50 mm patches it
+# helped less, and most with the finger. On Patch A and B (152 mm), where a sweep makes
+# each fit window's touches within about a minute of each other, it cost the robot
+# 0.023-0.050 mm and Patch A's finger 0.085 mm (Patch B's finger gained 0.025 mm;
+# benchmarks/plan_order.py; docs/benchmarks.md, "The touch order on small patches").
+AUTO, SWEEP, SHUFFLED = "auto", "sweep", "shuffled"
+ORDERS = (AUTO, SWEEP, SHUFFLED)
+SHUFFLE_UP_TO_MM = 50.0
+_SHUFFLE_SEED = 0
+
+
+def touch_order(patch: Patch, order: str = AUTO) -> str:
+    """The order ``order`` means on ``patch``: "sweep" or "shuffled" ("auto" resolved)."""
+    if order not in ORDERS:
+        raise ValueError(f"touch order must be one of {', '.join(ORDERS)}, got {order!r}")
+    if order != AUTO:
+        return order
+    return SHUFFLED if max(patch.length_mm, patch.width_mm) <= SHUFFLE_UP_TO_MM else SWEEP
+
+
+def in_order(points: np.ndarray, order: str) -> np.ndarray:
+    """``points`` (serpentine) in the resolved ``order``: as they are for "sweep", in one
+    fixed random order for "shuffled" (the same every time, so a resumed plan is the same)."""
+    if order == SWEEP:
+        return points
+    if order != SHUFFLED:
+        raise ValueError(f"resolved touch order must be sweep or shuffled, got {order!r}")
+    return points[np.random.default_rng(_SHUFFLE_SEED).permutation(len(points))]
+
+
 def uniform_points(patch: Patch, nx: int = 20, ny: int = 5, margin_mm: float = 3.0) -> np.ndarray:
     """(nx*ny, 2) grid from ``margin_mm`` to the far edges minus it, in serpentine order.
 
     ``nx`` points along the length (x), ``ny`` across (y). Column i runs up in y when i is
     even and down when odd, so consecutive touches are one grid step apart: the robot's
     travel is the shortest of the simple orders. The single source of the uniform grid:
-    ``robot.launch.PlanConfig.points_mm`` returns these points.
+    ``robot.launch.PlanConfig.points_mm`` returns these points, in the plan's order
+    (``in_order``).
     """
     if isinstance(nx, bool) or isinstance(ny, bool) or int(nx) != nx or int(ny) != ny:
         raise ValueError(f"grid must be whole numbers, got {nx!r} x {ny!r}")
@@ -95,7 +132,8 @@ def uniform_points(patch: Patch, nx: int = 20, ny: int = 5, margin_mm: float = 3
 
 @dataclass
 class UniformPlanner:
-    """The fixed grid as a plan: every point once, in serpentine order.
+    """The fixed grid as a plan: every point once, in serpentine order or shuffled
+    (``order``: "sweep" or "shuffled", as ``touch_order`` resolves it).
 
     Outcomes are accepted and ignored: a failed touch leaves its hole (the session has
     already retried it) and the grid goes on.
@@ -105,9 +143,10 @@ class UniformPlanner:
     nx: int = 20
     ny: int = 5
     margin_mm: float = 3.0
+    order: str = SWEEP
 
     def points(self) -> np.ndarray:
-        return uniform_points(self.patch, self.nx, self.ny, self.margin_mm)
+        return in_order(uniform_points(self.patch, self.nx, self.ny, self.margin_mm), self.order)
 
     def plan(self) -> PlanGenerator:
         points = self.points()  # validates before the first touch is asked for

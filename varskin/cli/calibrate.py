@@ -124,7 +124,7 @@ def _default_output(launch: LaunchConfig) -> Path:
 
 def make_planner(launch: LaunchConfig, settings: dict):
     """The plan generator a session's stored settings describe (the same on resume)."""
-    from varskin.planning import AdaptivePlanner, UniformPlanner
+    from varskin.planning import SWEEP, AdaptivePlanner, UniformPlanner
 
     if settings["planner"] in ("adaptive", REFINE):
         kwargs = {"budget": settings["budget"], "margin_mm": launch.plan.margin_mm}
@@ -134,13 +134,19 @@ def make_planner(launch: LaunchConfig, settings: dict):
             points = settings["points"]
             kwargs.update(coarse=None, first_points=points, budget=len(points) + settings["budget"])
         return AdaptivePlanner(launch.patch, **kwargs).plan()
+    # A session stored before the plan had an order was swept.
     return UniformPlanner(
-        launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm
+        launch.patch,
+        launch.plan.nx,
+        launch.plan.ny,
+        launch.plan.margin_mm,
+        settings.get("order", SWEEP),
     ).plan()
 
 
 def run(args: argparse.Namespace) -> int:
     from varskin.live_view import LiveView
+    from varskin.planning import touch_order
     from varskin.rig import open_rig
     from varskin.session import CalibrationSession, SessionSettings, live_schedule
     from varskin.store import SessionStore
@@ -175,6 +181,9 @@ def run(args: argparse.Namespace) -> int:
             if args.target_sigma is not None
             else launch.plan.target_sigma_mm,
         }
+        if plan_settings["planner"] == "uniform":
+            # Resolved once and stored, so that a resumed session keeps its order.
+            plan_settings["order"] = touch_order(launch.patch, launch.plan.order)
         if plan_settings["budget"] < 1:
             raise InputError("--budget must be >= 1")
         method = args.method or DEFAULT_METHOD
@@ -201,7 +210,14 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"launch: {launch.source} ({'simulated rig' if launch.simulated else 'REAL robot ' + launch.robot.host}), "
-        f"patch {launch.patch.name}, planner {plan_settings['planner']}, session {out_path}",
+        f"patch {launch.patch.name}, planner {plan_settings['planner']}"
+        # A session stored before the plan had an order was swept (make_planner).
+        + (
+            f" ({plan_settings.get('order', 'sweep')} order)"
+            if plan_settings["planner"] == "uniform"
+            else ""
+        )
+        + f", session {out_path}",
         file=sys.stderr,
     )
     with open_rig(launch, allow_real=args.real) as rig:
@@ -278,11 +294,13 @@ def _open_for_resume(path: str, args) -> tuple:
 def _check_plan_settings(path: str, plan: object) -> None:
     """A stored plan must be one this code can rebuild: refuse a damaged one by name."""
 
+    from varskin.planning import SHUFFLED, SWEEP
+
     def number(v) -> bool:
         return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
     kind = plan.get("planner") if isinstance(plan, dict) else None
-    ok = kind in (*PLANNERS, REFINE)
+    ok = kind in (*PLANNERS, REFINE) and plan.get("order", SWEEP) in (SWEEP, SHUFFLED)
     if ok and kind != "uniform":
         budget, target = plan.get("budget"), plan.get("target_sigma_mm")
         ok = isinstance(budget, int) and number(budget) and budget >= 1
