@@ -83,7 +83,9 @@ def _check_box(patch: Patch, margin_mm: float) -> None:
 # helped less, and most with the finger. On Patch A and B (152 mm), where a sweep makes
 # each fit window's touches within about a minute of each other, it cost the robot
 # 0.023-0.050 mm and Patch A's finger 0.085 mm (Patch B's finger gained 0.025 mm;
-# benchmarks/plan_order.py; docs/benchmarks.md, "The touch order on small patches").
+# benchmarks/plan_order.py). End to end on the simulated rig, whose touches are further
+# apart, the 20 mm patch gained less: median RMS 0.253 -> 0.230 mm over 10 seeds
+# (docs/benchmarks.md, "The touch order on small patches").
 AUTO, SWEEP, SHUFFLED = "auto", "sweep", "shuffled"
 ORDERS = (AUTO, SWEEP, SHUFFLED)
 SHUFFLE_UP_TO_MM = 50.0
