@@ -27,7 +27,7 @@ import yaml
 
 from robot.launch import load_launch
 from varskin.cli import main
-from varskin.cli.calibrate import make_planner
+from varskin.cli.calibrate import make_planner, stored_plan
 from varskin.design_fit import fit_design
 from varskin.localization.peakfit import Localizer
 from varskin.patch import config_dir, patch_from_dict
@@ -466,7 +466,7 @@ def test_a_uniform_plan_keeps_the_order_its_session_stored(tmp_path):
     )
 
     def touched(settings: dict) -> np.ndarray:
-        return np.array([(t.x_mm, t.y_mm) for t in make_planner(small, settings)])
+        return np.array([(t.x_mm, t.y_mm) for t in make_planner(small, stored_plan(settings))])
 
     stored = {"planner": "uniform", "budget": 100, "target_sigma_mm": None}
     swept = uniform_points(small.patch, *GRID, 3.0)

@@ -99,6 +99,7 @@ class DesignFit:
         return out
 
     def as_dict(self) -> dict:
+        name, far = self.largest
         return {
             "n_sensors": self.n_sensors,
             "shift_mm": list(self.shift_mm),
@@ -107,7 +108,7 @@ class DesignFit:
             "shift_sd_mm": list(self.shift_sd_mm),
             "turn_sd_deg": self.turn_sd_deg,
             "off_design_rms_mm": self.off_design_rms_mm,
-            "largest": {"sensor": self.largest[0], "mm": self.largest[1]},
+            "largest": {"sensor": name, "mm": far},
             "off_design_mm": {name: list(d) for name, d in self.off_design_mm.items()},
         }
 

@@ -124,7 +124,7 @@ def _default_output(launch: LaunchConfig) -> Path:
 
 def make_planner(launch: LaunchConfig, settings: dict):
     """The plan generator a session's stored settings describe (the same on resume)."""
-    from varskin.planning import SWEEP, AdaptivePlanner, UniformPlanner
+    from varskin.planning import AdaptivePlanner, UniformPlanner
 
     if settings["planner"] in ("adaptive", REFINE):
         kwargs = {"budget": settings["budget"], "margin_mm": launch.plan.margin_mm}
@@ -134,13 +134,8 @@ def make_planner(launch: LaunchConfig, settings: dict):
             points = settings["points"]
             kwargs.update(coarse=None, first_points=points, budget=len(points) + settings["budget"])
         return AdaptivePlanner(launch.patch, **kwargs).plan()
-    # A session stored before the plan had an order was swept.
     return UniformPlanner(
-        launch.patch,
-        launch.plan.nx,
-        launch.plan.ny,
-        launch.plan.margin_mm,
-        settings.get("order", SWEEP),
+        launch.patch, launch.plan.nx, launch.plan.ny, launch.plan.margin_mm, settings["order"]
     ).plan()
 
 
@@ -211,12 +206,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"launch: {launch.source} ({'simulated rig' if launch.simulated else 'REAL robot ' + launch.robot.host}), "
         f"patch {launch.patch.name}, planner {plan_settings['planner']}"
-        # A session stored before the plan had an order was swept (make_planner).
-        + (
-            f" ({plan_settings.get('order', 'sweep')} order)"
-            if plan_settings["planner"] == "uniform"
-            else ""
-        )
+        + (f" ({plan_settings['order']} order)" if plan_settings["planner"] == "uniform" else "")
         + f", session {out_path}",
         file=sys.stderr,
     )
@@ -288,7 +278,18 @@ def _open_for_resume(path: str, args) -> tuple:
         raise StoreError(f"{path}: damaged session file (its method is {meta['method']!r})")
     plan = meta["plan"]
     _check_plan_settings(path, plan)
-    return store, meta, launch, launch_path, dict(plan)  # type: ignore[arg-type]
+    return store, meta, launch, launch_path, stored_plan(plan)  # type: ignore[arg-type]
+
+
+def stored_plan(plan: dict) -> dict:
+    """A session's stored plan settings as ``make_planner`` takes them: a uniform plan
+    stored before plans had an order was swept."""
+    from varskin.planning import SWEEP
+
+    plan = dict(plan)
+    if plan.get("planner") == "uniform":
+        plan.setdefault("order", SWEEP)
+    return plan
 
 
 def _check_plan_settings(path: str, plan: object) -> None:
@@ -365,6 +366,7 @@ def _check_plan_safe(launch: LaunchConfig, plan: dict) -> None:
 
 def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
     from robot.rig_time import estimate_plan_time
+    from varskin.cli.localize import print_design_fit
     from varskin.report import write_report
     from varskin.session import rms_error_mm
 
@@ -388,15 +390,12 @@ def _finish(store, result, launch: LaunchConfig, rig, out_path: Path) -> None:
             f"error vs the simulated rig's hidden layout: RMS {rms:.3f} mm over {n} located sensors"
         )
     lines.append(f"located {located}/{len(result.predictions.estimates)} sensors")
-    fit = files.design_fit
-    if fit is not None:
-        lines.append(fit.summary())
-        store.set_meta("design_fit", fit.as_dict())
-    lines.append(f"session: {out_path}; report: {files.predictions_csv.parent}/")
     for line in lines:
         print(line)
-    for w in fit.warnings() if fit is not None else ():
-        print(f"varskin: warning: {w}", file=sys.stderr)
+    if files.design_fit is not None:
+        print_design_fit(files.design_fit)
+        store.set_meta("design_fit", files.design_fit.as_dict())
+    print(f"session: {out_path}; report: {files.predictions_csv.parent}/")
     store.set_meta("rig_time_estimate_s", est.total_s)
     # a resumed session adds this run's time to the earlier runs'
     store.set_meta("wall_s", float(store.meta().get("wall_s") or 0.0) + result.wall_s)
