@@ -17,10 +17,18 @@ from varskin.board.cellmap import CellMap
 from varskin.errors import StoreError
 from varskin.localization.peakfit import Localizer
 from varskin.patch import Patch
+from varskin.pointlogs import PointLog
 from varskin.predictions import Predictions
 from varskin.session import final_estimate, live_estimate, live_schedule
-from varskin.store import SessionStore
-from varskin.touch_window import TouchTimes, WindowConfig, WindowProblem, cut_point_log
+from varskin.store import SessionStore, StoredLog
+from varskin.touch_window import (
+    REST,
+    TouchTimes,
+    WindowConfig,
+    WindowProblem,
+    cut_point_log,
+    stored_window,
+)
 
 
 @dataclass(frozen=True)
@@ -55,31 +63,50 @@ def _max_diff(a: Predictions, b: Predictions) -> tuple[float, int]:
 def window_config(store: SessionStore) -> WindowConfig:
     w = store.meta()["window"]
     try:
-        return WindowConfig(**w)  # type: ignore[arg-type]
-    except TypeError:
+        return stored_window(w)
+    except (TypeError, ValueError):
         raise StoreError(
             f"{store.path}: damaged session file (its touch window is {w!r})"
         ) from None
 
 
-def recut_point_logs(store: SessionStore, patch: Patch) -> float:
-    """Re-cut every stored point log from the stored frames; the largest difference."""
-    cfg = window_config(store)
+def recut_logs(
+    store: SessionStore, patch: Patch, cfg: WindowConfig | None = None
+) -> list[tuple[StoredLog, PointLog, int]] | None:
+    """Every stored point log cut again from the stored frames, with ``cfg`` (default: the
+    session's own windows): (stored, re-cut, its baseline frames) in plan order; None if
+    some cannot be (frames, an attempt record or the rest values lost)."""
+    cfg = cfg or window_config(store)
     cellmap = CellMap.from_patch(patch)
-    worst = 0.0
+    base = store.baseline()
+    rest = base[0] if base else None
+    if rest is None and cfg.reference == REST:
+        return None
+    out = []
     for s in store.stored_logs():
         a = store.attempt(s.attempt_id)
-        times = TouchTimes(a.t_start, a.t_contact, a.t_settled, a.t_release)
         if None in (a.seq_first, a.seq_last, a.t_start, a.t_contact, a.t_settled, a.t_release):
-            return np.inf  # a damaged attempt record: its point log cannot be re-cut
+            return None
+        times = TouchTimes(a.t_start, a.t_contact, a.t_settled, a.t_release)
         frames = store.frames_by_seq(a.seq_first, a.seq_last)
         try:
             log, n_base = cut_point_log(
                 frames, times, cellmap, cfg, s.plan_index, s.log.x_mm, s.log.y_mm,
-                s.log.force_n, s.log.t_s,
+                s.log.force_n, s.log.t_s, rest,
             )  # fmt: skip
         except WindowProblem:
-            return np.inf  # its frames are gone or damaged
+            return None
+        out.append((s, log, n_base))
+    return out
+
+
+def recut_point_logs(store: SessionStore, patch: Patch) -> float:
+    """Re-cut every stored point log from the stored frames; the largest difference."""
+    recut = recut_logs(store, patch)
+    if recut is None:
+        return np.inf
+    worst = 0.0
+    for s, log, n_base in recut:
         diff = np.abs(log.values - s.log.values).max() if len(log.values) else 0.0
         diff = max(diff, np.abs(log.sample_sd - s.log.sample_sd).max())
         if log.n_samples != s.log.n_samples or n_base != s.n_baseline:

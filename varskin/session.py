@@ -50,6 +50,7 @@ from varskin.touch_window import (
     check_link,
     cut_point_log,
     robust_mean,
+    stored_window,
 )
 
 Planner = Generator[PlannedTouch, "TouchOutcome | None", None]
@@ -157,6 +158,7 @@ class CalibrationSession:
         self.localizer: Localizer | None = None
         self._t0 = 0.0
         self._t_offset = 0.0
+        self._rest: np.ndarray | None = None  # the session's rest values, once measured
 
     # --- the loop -----------------------------------------------------------------------
 
@@ -164,15 +166,19 @@ class CalibrationSession:
         started = time.monotonic()
         self.rig.recorder.subscribe(self._tap)
         self._t0 = time.monotonic()
+        stored = self.store.stored_logs()
+        if stored:
+            # A resumed session's logs stay relative to what its first ones were.
+            self.window = dataclasses.replace(self.window, reference=self._stored_reference())
         # replay re-cuts point logs with exactly these windows
         self.store.set_meta("window", dataclasses.asdict(self.window))
         self.store.set_meta("live_estimate", self.settings.live_estimate)
-        stored = self.store.stored_logs()
         self._t_offset = (max(s.log.t_s for s in stored) + 1.0) if stored else 0.0
         touch = self._replay_history(stored)
         if touch is not None and self.store.baseline() is None:
             self._measure_rest(touch)
         rest, rest_sd, _ = self.store.baseline() or (None, None, 0)
+        self._rest = rest
         if self.localizer is None:
             self.localizer = self._new_localizer(rest, rest_sd)
         while touch is not None:
@@ -203,6 +209,14 @@ class CalibrationSession:
         return live_estimate(
             self.localizer, log, self.settings.live_estimate, self.settings.batch_after_logs, shown
         )
+
+    def _stored_reference(self) -> str:
+        try:
+            return stored_window(self.store.meta()["window"]).reference
+        except (KeyError, TypeError, ValueError):
+            raise StoreError(
+                f"{self.store.path}: damaged session file (its touch window is missing or unreadable)"
+            ) from None
 
     def _new_localizer(self, rest, rest_sd) -> Localizer:
         return Localizer(self.sensors, rest=rest, rest_sd=rest_sd, patch=self.rig.launch.patch)
@@ -383,7 +397,7 @@ class CalibrationSession:
         t_session = self._t_offset + (result.t_settled - self._t0) * self.rig.time_scale
         return cut_point_log(
             self._recent, times, self.rig.cellmap, w, touch.index,
-            touch.x_mm, touch.y_mm, result.mean_force_n, t_session,
+            touch.x_mm, touch.y_mm, result.mean_force_n, t_session, self._rest,
         )  # fmt: skip
 
     def _record(
