@@ -31,8 +31,8 @@ from localizer_live import seed_range
 
 from varskin.pointlogs import PointLogs
 from varskin.predictions import OK
-from varskin.replay import recut_logs, window_config
-from varskin.session import final_estimate, rms_error_mm
+from varskin.replay import recut_logs
+from varskin.session import final_estimate, rms_error_mm, window_config
 from varskin.store import SessionStore
 from varskin.touch_window import BASELINE
 

@@ -27,7 +27,6 @@ import pytest
 import yaml
 
 from robot.launch import load_launch
-from varskin.board.cellmap import CellMap
 from varskin.cli import main
 from varskin.cli.calibrate import make_planner, stored_plan
 from varskin.design_fit import fit_design
@@ -35,10 +34,11 @@ from varskin.localization.peakfit import Localizer
 from varskin.patch import config_dir, patch_from_dict
 from varskin.planning import UniformPlanner, touch_order, uniform_points
 from varskin.pointlog_csv import read_point_logs
+from varskin.replay import recut_logs
 from varskin.rig import open_rig
 from varskin.session import CalibrationSession, SessionEvent, SessionSettings, rms_error_mm
 from varskin.store import SessionStore
-from varskin.touch_window import BASELINE, REST, TouchTimes, cut_point_log, stored_window
+from varskin.touch_window import BASELINE, REST, stored_window
 
 REPO = config_dir().parent
 GRID = (14, 3)  # about the sparsest grid on which nearly all of Patch B's sensors locate
@@ -171,6 +171,15 @@ def test_replay_of_a_damaged_session_says_what_it_could_not_check(full_run, tmp_
     assert main(["replay", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.db: damaged session file" in err[0]
+    odd = tmp_path / "odd.db"
+    shutil.copy(db, odd)
+    with sqlite3.connect(odd) as conn:
+        conn.execute(
+            "UPDATE meta SET value = json_set(value, '$.reference', 'touch') WHERE key = 'window'"
+        )
+    assert main(["replay", str(odd)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "odd.db: damaged session file (its touch window is" in err[0]
 
 
 def _calibrating(launch: Path, db: Path, until_logs: int) -> subprocess.Popen:
@@ -513,21 +522,12 @@ def test_a_session_stored_before_logs_had_a_reference_resumes_against_its_baseli
     old = tmp_path / "old.db"
     shutil.copy(db, old)
     cut = N_TOUCHES - 3
-    cellmap = CellMap.from_patch(load_launch(launch).patch)
     with SessionStore.open(old) as store:
         window = store.meta()["window"]
         assert window["reference"] == REST  # a new session's logs are relative to the rest
         before = replace(stored_window(window), reference=BASELINE)
-        baseline_logs = {}
-        for s in store.stored_logs()[:cut]:
-            a = store.attempt(s.attempt_id)
-            log, _ = cut_point_log(
-                store.frames_by_seq(a.seq_first, a.seq_last),
-                TouchTimes(a.t_start, a.t_contact, a.t_settled, a.t_release),
-                cellmap, before, s.plan_index, s.log.x_mm, s.log.y_mm, s.log.force_n,
-                s.log.t_s, None,
-            )  # fmt: skip
-            baseline_logs[s.plan_index] = log.values
+        recut = recut_logs(store, load_launch(launch).patch, before)
+    baseline_logs = {s.plan_index: log.values for s, log, _ in recut[:cut]}
     del window["reference"]
     with sqlite3.connect(old) as c:
         for table in ("outcomes", "point_logs", "attempts"):

@@ -14,21 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from varskin.board.cellmap import CellMap
-from varskin.errors import StoreError
 from varskin.localization.peakfit import Localizer
 from varskin.patch import Patch
 from varskin.pointlogs import PointLog
 from varskin.predictions import Predictions
-from varskin.session import final_estimate, live_estimate, live_schedule
+from varskin.session import final_estimate, live_estimate, live_schedule, window_config
 from varskin.store import SessionStore, StoredLog
-from varskin.touch_window import (
-    REST,
-    TouchTimes,
-    WindowConfig,
-    WindowProblem,
-    cut_point_log,
-    stored_window,
-)
+from varskin.touch_window import REST, TouchTimes, WindowConfig, WindowProblem, cut_point_log
 
 
 @dataclass(frozen=True)
@@ -58,16 +50,6 @@ def _max_diff(a: Predictions, b: Predictions) -> tuple[float, int]:
             elif u is not None:
                 worst = max(worst, abs(u - v))
     return worst, mismatches
-
-
-def window_config(store: SessionStore) -> WindowConfig:
-    w = store.meta()["window"]
-    try:
-        return stored_window(w)
-    except (TypeError, ValueError):
-        raise StoreError(
-            f"{store.path}: damaged session file (its touch window is {w!r})"
-        ) from None
 
 
 def recut_logs(

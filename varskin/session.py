@@ -133,6 +133,18 @@ class _FrameTap:
         return True
 
 
+def window_config(store: SessionStore) -> WindowConfig:
+    """The windows a stored session's point logs were cut with (``StoreError`` if its
+    record of them is damaged): replay re-cuts with them, and a resume goes on with them."""
+    w = store.meta().get("window")
+    try:
+        return stored_window(w)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise StoreError(
+            f"{store.path}: damaged session file (its touch window is {w!r})"
+        ) from None
+
+
 class CalibrationSession:
     def __init__(
         self,
@@ -169,7 +181,8 @@ class CalibrationSession:
         stored = self.store.stored_logs()
         if stored:
             # A resumed session's logs stay relative to what its first ones were.
-            self.window = dataclasses.replace(self.window, reference=self._stored_reference())
+            reference = window_config(self.store).reference
+            self.window = dataclasses.replace(self.window, reference=reference)
         # replay re-cuts point logs with exactly these windows
         self.store.set_meta("window", dataclasses.asdict(self.window))
         self.store.set_meta("live_estimate", self.settings.live_estimate)
@@ -209,14 +222,6 @@ class CalibrationSession:
         return live_estimate(
             self.localizer, log, self.settings.live_estimate, self.settings.batch_after_logs, shown
         )
-
-    def _stored_reference(self) -> str:
-        try:
-            return stored_window(self.store.meta()["window"]).reference
-        except (KeyError, TypeError, ValueError):
-            raise StoreError(
-                f"{self.store.path}: damaged session file (its touch window is missing or unreadable)"
-            ) from None
 
     def _new_localizer(self, rest, rest_sd) -> Localizer:
         return Localizer(self.sensors, rest=rest, rest_sd=rest_sd, patch=self.rig.launch.patch)
