@@ -549,6 +549,27 @@ def test_a_session_stored_before_logs_had_a_reference_resumes_against_its_baseli
     assert "point logs re-cut from raw frames: identical (bit for bit)" in capsys.readouterr().out
 
 
+def test_a_small_patch_s_logs_are_taken_against_each_touch_s_baseline(tmp_path, capsys):
+    """On a patch at most 50 mm long (its plan is shuffled) each sensor's own touches span
+    the session, so against the rest the board's settling would flag sensors `drifting`:
+    its logs are cut against each touch's baseline window, and replay re-cuts them so."""
+    small = tmp_path / "small.yaml"
+    small.write_text(
+        yaml.safe_dump(
+            {"name": "small", "size_mm": [40, 20], "tx_x_mm": [8, 20, 32], "rx_y_mm": [6, 14]}
+        )
+    )
+    launch = write_launch(tmp_path / "sim.yaml", grid=(4, 2), patch=str(small))
+    db = tmp_path / "small.db"
+    assert main(["calibrate", str(launch), "-o", str(db)]) == 0
+    with SessionStore.open(db) as store:
+        assert store.meta()["window"]["reference"] == BASELINE
+        assert store.meta()["plan"]["order"] == "shuffled"
+    capsys.readouterr()
+    assert main(["replay", str(db)]) == 0
+    assert "point logs re-cut from raw frames: identical (bit for bit)" in capsys.readouterr().out
+
+
 def test_adaptive_session_resumes_to_the_same_plan(tmp_path, capsys, monkeypatch):
     """An adaptive plan depends on every estimate so far; resuming a session re-feeds the
     stored point logs to the localizer and must land on exactly the stored touches (else the

@@ -7,22 +7,24 @@ import pytest
 
 from varskin.board.cellmap import CellMap
 from varskin.board.frame import N_RX, N_TX, Frame, Gap
-from varskin.patch import builtin_patch
+from varskin.patch import builtin_patch, patch_from_dict
 from varskin.touch_window import (
     BASELINE,
+    REST,
     TouchTimes,
     WindowConfig,
     WindowProblem,
     check_link,
     cut_point_log,
+    reference_for,
     robust_mean,
     stored_window,
 )
 
 PATCH = builtin_patch("patch_b")
 CELLMAP = CellMap.from_patch(PATCH)
-REST = 9000.0
-RESTS = np.full(len(PATCH.names), REST)  # the session's rest values, as measured
+REST_COUNTS = 9000.0
+RESTS = np.full(len(PATCH.names), REST_COUNTS)  # the session's rest values, as measured
 
 
 def _stream(times, touch_value, t_contact, t_release, rng, spike_at=None):
@@ -30,7 +32,7 @@ def _stream(times, touch_value, t_contact, t_release, rng, spike_at=None):
     half of it in the transitions (0.1 s either side of contact and release)."""
     frames = []
     for i, t in enumerate(times):
-        values = REST + rng.normal(0, 2.0, len(PATCH.names))
+        values = REST_COUNTS + rng.normal(0, 2.0, len(PATCH.names))
         if t_contact <= t <= t_release:
             values[0] += touch_value
         elif t_contact - 0.1 <= t < t_contact or t_release < t <= t_release + 0.1:
@@ -153,3 +155,14 @@ def test_a_stored_window_without_a_reference_is_an_old_sessions_baseline():
         stored_window({**stored, "reference": "touch"})
     with pytest.raises(TypeError):
         stored_window({**stored, "window_s": 1.0})
+
+
+def test_a_patch_at_most_50_mm_long_is_cut_against_its_baselines():
+    def patch(length, width):
+        return patch_from_dict(
+            {"name": "p", "size_mm": [length, width], "tx_x_mm": [5], "rx_y_mm": [5]}, "<p>"
+        )
+
+    assert reference_for(PATCH) == REST  # Patch B, 152 mm
+    assert reference_for(patch(50, 10)) == BASELINE and reference_for(patch(20, 50)) == BASELINE
+    assert reference_for(patch(60, 60)) == REST

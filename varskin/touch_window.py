@@ -9,18 +9,24 @@ Two windows are cut:
   (the probe's approach and the first squeeze are transitions), at most ``baseline_s`` long;
 * the **touch**: frames sampled between force settled and release (the arm's dwell).
 
-The point log is the robust mean of the touch window minus the session's rest values (the
-no-contact frames measured before the first touch), as in every point log the localizer
-reads: the board's slow offset drift stays in the log, and the localizer takes each sensor's
-floor from its own map. Sessions stored before 2026-11-29 subtracted the touch's own
-baseline window instead, which cancels drift between touches but adds that window's noise
-to every log: on ten simulated-rig scenes of Patch B the median RMS was 0.305 mm that way
-and 0.198 mm against the rest, from the same frames (docs/benchmarks.md, "The main job's
-point logs: against the rest"). Those sessions are replayed and resumed that way
-(``reference``). The baseline window is cut either way: it shows the board
-streamed through the approach. Everything here is a pure function of the frames, the
-attempt's times and the rest: replay runs this very code on the stored frames and gets the
-stored point log back bit for bit.
+The point log is the robust mean of the touch window minus a reference (``reference``):
+
+* the session's **rest** values (the no-contact frames measured before the first touch), as
+  in every point log the localizer reads elsewhere: the board's slow offset drift stays in
+  the log, and the localizer takes each sensor's floor from its own map. On ten
+  simulated-rig scenes of Patch B the median RMS was 0.198 mm this way and 0.305 mm against
+  the baselines, from the same frames;
+* or the touch's own **baseline** window, which cancels the drift between touches but adds
+  that window's noise to every log. A patch at most ``planning.SHUFFLE_UP_TO_MM`` long
+  needs it: there each sensor's own touches span the whole session, the board's settling
+  falls within them, and against the rest 1.0-1.9 sensors per scene came out ``drifting``
+  on the 20-50 mm patches measured (``reference_for``).
+
+Sessions stored before 2026-11-29 were all cut against their baselines, and are replayed
+and resumed that way (docs/benchmarks.md, "The main job's point logs: against the rest").
+The baseline window is cut either way: it shows the board streamed through the approach.
+Everything here is a pure function of the frames, the attempt's times and the rest: replay
+runs this very code on the stored frames and gets the stored point log back bit for bit.
 """
 
 from __future__ import annotations
@@ -32,10 +38,12 @@ import numpy as np
 
 from varskin.board.cellmap import CellMap
 from varskin.board.frame import Frame, Gap
+from varskin.patch import Patch
+from varskin.planning import SHUFFLE_UP_TO_MM
 from varskin.pointlogs import PointLog
 
 REST = "rest"  # the session's rest values
-BASELINE = "baseline"  # the touch's own no-contact window (sessions before 2026-11-29)
+BASELINE = "baseline"  # the touch's own no-contact window
 REFERENCES = (REST, BASELINE)
 
 
@@ -63,6 +71,13 @@ class WindowConfig:
             self.max_frame_interval_s / k,
             self.reference,
         )
+
+
+def reference_for(patch: Patch) -> str:
+    """What a new session's point logs on ``patch`` are taken against: BASELINE on a patch
+    whose longer side is at most ``SHUFFLE_UP_TO_MM`` (whose plan is shuffled), else REST."""
+    small = max(patch.length_mm, patch.width_mm) <= SHUFFLE_UP_TO_MM
+    return BASELINE if small else REST
 
 
 def stored_window(w: dict) -> WindowConfig:

@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     from varskin.rig import open_rig
     from varskin.session import CalibrationSession, SessionSettings, live_schedule
     from varskin.store import SessionStore
-    from varskin.touch_window import WindowConfig
+    from varskin.touch_window import WindowConfig, reference_for
 
     if args.max_retries < 0:
         raise InputError("--max-retries must be >= 0")
@@ -195,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(
             f"{launch.source}: drives a REAL robot; pass --real once the workspace is clear"
         )
-    window = WindowConfig()
+    # A resumed session goes on with the reference its logs have (CalibrationSession.run).
+    window = WindowConfig(reference=reference_for(launch.patch))
     settings = SessionSettings(
         method=method,
         max_retries=args.max_retries,
