@@ -81,6 +81,16 @@ def full_run(tmp_path_factory):
     return launch, db
 
 
+def _as_killed_after(db: Path, cut: int) -> None:
+    """Leave ``db`` as a kill after plan touch ``cut - 1``'s commit would: the session
+    commits each touch whole, so nothing of the later touches, and still running."""
+    with sqlite3.connect(db) as c:
+        for table in ("outcomes", "point_logs", "attempts"):
+            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
+        c.execute("DELETE FROM estimates WHERE n_logs > ?", (cut,))
+        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
+
+
 def test_calibrate_runs_the_plan_stores_and_reports(full_run, capsys):
     launch, db = full_run
     with SessionStore.open(db) as store:
@@ -493,11 +503,8 @@ def test_a_session_stored_before_plans_had_an_order_resumes_swept(full_run, tmp_
     old = tmp_path / "old.db"
     shutil.copy(db, old)
     cut = N_TOUCHES - 3
+    _as_killed_after(old, cut)
     with sqlite3.connect(old) as c:
-        for table in ("outcomes", "point_logs", "attempts"):
-            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
-        c.execute("DELETE FROM estimates WHERE n_logs > ?", (cut,))
-        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
         c.execute("UPDATE meta SET value = json_remove(value, '$.order') WHERE key = 'plan'")
     capsys.readouterr()
     assert main(["calibrate", "--resume", str(old)]) == 0
@@ -529,9 +536,8 @@ def test_a_session_stored_before_logs_had_a_reference_resumes_against_its_baseli
         recut = recut_logs(store, load_launch(launch).patch, before)
     baseline_logs = {s.plan_index: log.values for s, log, _ in recut[:cut]}
     del window["reference"]
+    _as_killed_after(old, cut)
     with sqlite3.connect(old) as c:
-        for table in ("outcomes", "point_logs", "attempts"):
-            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
         c.execute("DELETE FROM estimates")  # made from the logs against the rest
         for i, values in baseline_logs.items():
             c.execute(
@@ -539,7 +545,6 @@ def test_a_session_stored_before_logs_had_a_reference_resumes_against_its_baseli
                 (np.ascontiguousarray(values, "<f8").tobytes(), i),
             )
         c.execute("UPDATE meta SET value = ? WHERE key = 'window'", (json.dumps(window),))
-        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
     assert main(["calibrate", "--resume", str(old)]) == 0
     with SessionStore.open(old) as store:
         assert store.meta()["window"]["reference"] == BASELINE
@@ -676,11 +681,7 @@ def test_refine_adds_touches_where_sensors_are_missing_and_resumes_as_a_refineme
     # Killed after three refinement touches: what a kill leaves is the store as it was
     # after that touch's commit (the session commits each touch whole).
     cut = FAULT_N + 3
-    with sqlite3.connect(db) as c:
-        for table in ("outcomes", "point_logs", "attempts"):
-            c.execute(f"DELETE FROM {table} WHERE plan_index >= ?", (cut,))
-        c.execute("DELETE FROM estimates WHERE n_logs > ?", (cut,))
-        c.execute("UPDATE meta SET value = ? WHERE key = 'status'", ('"running"',))
+    _as_killed_after(db, cut)
     capsys.readouterr()
     assert main(["calibrate", "--resume", str(db)]) == 0
     assert f"resumed after {cut} plan touches" in capsys.readouterr().err

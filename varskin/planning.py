@@ -92,13 +92,20 @@ SHUFFLE_UP_TO_MM = 50.0
 _SHUFFLE_SEED = 0
 
 
+def is_small_patch(patch: Patch) -> bool:
+    """Whether ``patch``'s longer side is at most ``SHUFFLE_UP_TO_MM``: so small that every
+    touch lies in every sensor's fit window. Such a patch is shuffled (``touch_order``) and
+    its point logs keep each touch's baseline (``touch_window.reference_for``)."""
+    return max(patch.length_mm, patch.width_mm) <= SHUFFLE_UP_TO_MM
+
+
 def touch_order(patch: Patch, order: str = AUTO) -> str:
     """The order ``order`` means on ``patch``: "sweep" or "shuffled" ("auto" resolved)."""
     if order not in ORDERS:
         raise ValueError(f"touch order must be one of {', '.join(ORDERS)}, got {order!r}")
     if order != AUTO:
         return order
-    return SHUFFLED if max(patch.length_mm, patch.width_mm) <= SHUFFLE_UP_TO_MM else SWEEP
+    return SHUFFLED if is_small_patch(patch) else SWEEP
 
 
 def in_order(points: np.ndarray, order: str) -> np.ndarray:

@@ -39,7 +39,7 @@ import numpy as np
 from varskin.board.cellmap import CellMap
 from varskin.board.frame import Frame, Gap
 from varskin.patch import Patch
-from varskin.planning import SHUFFLE_UP_TO_MM
+from varskin.planning import is_small_patch
 from varskin.pointlogs import PointLog
 
 REST = "rest"  # the session's rest values
@@ -74,10 +74,9 @@ class WindowConfig:
 
 
 def reference_for(patch: Patch) -> str:
-    """What a new session's point logs on ``patch`` are taken against: BASELINE on a patch
-    whose longer side is at most ``SHUFFLE_UP_TO_MM`` (whose plan is shuffled), else REST."""
-    small = max(patch.length_mm, patch.width_mm) <= SHUFFLE_UP_TO_MM
-    return BASELINE if small else REST
+    """What a new session's point logs on ``patch`` are taken against: BASELINE on a small
+    patch (``planning.is_small_patch``, whose plan is shuffled), else REST."""
+    return BASELINE if is_small_patch(patch) else REST
 
 
 def stored_window(w: dict) -> WindowConfig:
