@@ -114,13 +114,13 @@ def main(argv: list[str] | None = None) -> None:
             jobs = [(a.patch, a.probe, seed, prior) for seed in a.seeds]
             rows = np.array([r for scene in ex.map(one_scene, jobs) for r in scene])
             e, sigma, ex_mm = rows[:, 0], rows[:, 1], rows[:, 3]
-            tx, seed = rows[:, 2].astype(int), rows[:, 4].astype(int)
+            tx, scene = rows[:, 2].astype(int), rows[:, 4].astype(int)
             last = len(builtin_patch(a.patch).tx_x_mm) - 1
             edge = (tx == 0) | (tx == last)
             given = "patch given" if prior else "no patch"
             for where, m in (("outermost TX wires", edge), ("other wires", ~edge)):
                 report(f"{a.patch} {a.probe}, {given}, {where}", e[m], sigma[m], len(a.seeds))
-            wire_report(tx, ex_mm, seed, last)
+            wire_report(tx, ex_mm, scene, last)
 
 
 if __name__ == "__main__":
