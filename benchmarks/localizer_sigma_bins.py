@@ -13,7 +13,7 @@ the sigmas predict (the sum over sensors of P(|e| > 2 mm) for a 2-D Gaussian err
 Then, per outermost TX wire, how much of its sensors' x error they share: the RMS over
 scenes of the wire's mean x error beside the sd within the wire, the sensors beyond 1.5
 and 2 mm along x, and how many beyond 2 mm a Gaussian of the wire's RMS x error expects
-(docs/benchmarks.md, "Why no solver tried here closes point 1's last miss").
+(docs/benchmarks.md, "Why point 1's last misses stay open").
 
 Run as ``python benchmarks/localizer_sigma_bins.py [--patch patch_b] [--probe finger]
 [--seeds 360-559] [--jobs 2]`` (Patch B finger, seeds 360-559, cell centres of the 20 x 5
