@@ -83,6 +83,8 @@ def one_run(tmp: Path, i: int, launch: str | None) -> dict:
         patch = store.patch()
         old = dataclasses.replace(window_config(store), reference=BASELINE)
         recut = recut_logs(store, patch, old)
+    if recut is None:
+        raise RuntimeError(f"{db}: its point logs cannot be cut again from its frames")
     truth = np.asarray(meta["truth_xy"], float)
     peak, t_peak = _timed(final_estimate, logs, "peakfit", patch)
     paper, t_paper = _timed(final_estimate, logs, "paper", patch)

@@ -109,13 +109,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seeds", type=seed_range, default=range(360, 560), help="default 360-559")
     ap.add_argument("--jobs", type=int, default=2, help="processes (default 2)")
     a = ap.parse_args(argv)
+    last = len(builtin_patch(a.patch).tx_x_mm) - 1
     with ProcessPoolExecutor(a.jobs) as ex:
         for prior in (True, False):
             jobs = [(a.patch, a.probe, seed, prior) for seed in a.seeds]
             rows = np.array([r for scene in ex.map(one_scene, jobs) for r in scene])
             e, sigma, ex_mm = rows[:, 0], rows[:, 1], rows[:, 3]
             tx, scene = rows[:, 2].astype(int), rows[:, 4].astype(int)
-            last = len(builtin_patch(a.patch).tx_x_mm) - 1
             edge = (tx == 0) | (tx == last)
             given = "patch given" if prior else "no patch"
             for where, m in (("outermost TX wires", edge), ("other wires", ~edge)):

@@ -32,7 +32,7 @@ runs this very code on the stored frames and gets the stored point log back bit 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,14 +62,12 @@ class WindowConfig:
     def scaled(self, time_scale: float) -> WindowConfig:
         """The same windows on a rig whose clock runs ``time_scale`` times faster."""
         k = float(time_scale)
-        return WindowConfig(
-            self.baseline_s / k,
-            self.guard_s / k,
-            self.latency_s / k,
-            self.min_touch_frames,
-            self.min_baseline_frames,
-            self.max_frame_interval_s / k,
-            self.reference,
+        return replace(
+            self,
+            baseline_s=self.baseline_s / k,
+            guard_s=self.guard_s / k,
+            latency_s=self.latency_s / k,
+            max_frame_interval_s=self.max_frame_interval_s / k,
         )
 
 
